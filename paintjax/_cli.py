@@ -1,0 +1,43 @@
+"""The `paintjax` console script: one sub-command per module in `paintjax._commands`.
+
+Float64 is enabled here (the CLI is a documented place that needs it); errors in user input are
+reported as one line naming the parameter, with exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+#: Sub-command modules under paintjax._commands, in the order `--help` lists them.
+COMMANDS = ("demo", "microfacet")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="paintjax",
+        description="Hybrid ray-wave appearance model of metallic paint (lengths in µm, angles in degrees).",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(f"paintjax._commands.{name}").register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        result = args.func(args)
+    except ValueError as err:
+        print(f"paintjax {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    return int(result or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

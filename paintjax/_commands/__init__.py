@@ -1,0 +1,1 @@
+"""Sub-commands of the `paintjax` CLI; each module defines `register(subparsers)`."""

@@ -1,0 +1,98 @@
+"""Platelet tilt statistics: a two-parameter gamma law over the tilt angle in degrees.
+
+The tilt t ∈ [0°, 90°] is the angle between a platelet normal and the paint normal; the
+azimuth is uniform. The gamma law is truncated at 90° and renormalised.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import gammainc, gammaln
+from jaxtyping import Array, ArrayLike, Float, PRNGKeyArray
+
+MAX_TILT_DEG = 90.0
+_INV_CDF_POINTS = 4097
+
+
+def check_gamma_parameters(shape, scale_deg) -> None:
+    """Raise a ValueError naming the parameter if the gamma law is invalid (concrete values only)."""
+    for name, v, hi in (("shape", shape, 1e3), ("scale", scale_deg, 90.0)):
+        try:
+            a = np.asarray(v, dtype=float)
+        except (TypeError, ValueError):
+            continue  # traced
+        if np.any(~np.isfinite(a)) or np.any(a <= 0) or np.any(a > hi):
+            unit = " degrees" if name == "scale" else ""
+            raise ValueError(f"tilt gamma {name} must lie in (0, {hi:g}]{unit}, got {v!r}")
+
+
+class GammaTilt(eqx.Module):
+    """Gamma-distributed platelet tilt (shape k, scale θ in degrees), truncated at 90°."""
+
+    shape: Float[Array, ""]
+    scale_deg: Float[Array, ""]
+
+    def __init__(self, shape: ArrayLike, scale_deg: ArrayLike):
+        check_gamma_parameters(shape, scale_deg)
+        self.shape = jnp.asarray(shape, dtype=jnp.result_type(float))
+        self.scale_deg = jnp.asarray(scale_deg, dtype=jnp.result_type(float))
+
+    @property
+    def mean_deg(self) -> Float[Array, ""]:
+        """Mean of the untruncated law, shape × scale."""
+        return self.shape * self.scale_deg
+
+    def _mass(self) -> Float[Array, ""]:
+        return gammainc(self.shape, MAX_TILT_DEG / self.scale_deg)
+
+    def cdf_deg(self, tilt_deg: ArrayLike) -> Float[Array, "..."]:
+        t = jnp.clip(jnp.asarray(tilt_deg), 0.0, MAX_TILT_DEG)
+        return gammainc(self.shape, t / self.scale_deg) / self._mass()
+
+    def pdf_deg(self, tilt_deg: ArrayLike) -> Float[Array, "..."]:
+        """Density of the tilt angle per degree."""
+        t = jnp.asarray(tilt_deg)
+        inside = (t > 0) & (t <= MAX_TILT_DEG)
+        ts = jnp.where(inside, t, 1.0)
+        logp = (self.shape - 1.0) * jnp.log(ts / self.scale_deg) - ts / self.scale_deg
+        logp = logp - gammaln(self.shape) - jnp.log(self.scale_deg)
+        return jnp.where(inside, jnp.exp(logp), 0.0) / self._mass()
+
+    def density_per_solid_angle(self, cos_tilt: ArrayLike) -> Float[Array, "..."]:
+        """Density p(m) of platelet normals per steradian of the upper hemisphere.
+
+        p(m) = pdf_deg(t)·(180/π) / (2π sin t), so that ∫ p dω = 1.
+        """
+        c = jnp.clip(jnp.asarray(cos_tilt), -1.0, 1.0)
+        t = jnp.arccos(c)
+        s = jnp.maximum(jnp.sin(t), 1e-300)
+        return self.pdf_deg(jnp.rad2deg(t)) * (180.0 / jnp.pi) / (2.0 * jnp.pi * s)
+
+    def sample_deg(self, key: PRNGKeyArray, n: int) -> Float[Array, " n"]:
+        """n tilts [deg] by inverse-CDF sampling of the truncated law (tabulated, 4097 nodes)."""
+        # Grid dense where the mass is: uniform in sqrt(t).
+        grid = MAX_TILT_DEG * jnp.linspace(0.0, 1.0, _INV_CDF_POINTS) ** 2
+        cdf = self.cdf_deg(grid)
+        u = jax.random.uniform(key, (n,), dtype=grid.dtype)
+        return jnp.interp(u, cdf, grid)
+
+    def projected_area(self, cos_theta: ArrayLike, nodes: int = 1024) -> Float[Array, "..."]:
+        """A(ω) = ∫ p(m) |m·ω| dω_m: mean projected area of a unit platelet seen along ω.
+
+        Exact azimuthal average; Gauss–Legendre over the tilt.
+        """
+        x, w = np.polynomial.legendre.leggauss(nodes)
+        t_deg = 0.5 * (x + 1.0) * MAX_TILT_DEG
+        wt = 0.5 * w * MAX_TILT_DEG * self.pdf_deg(t_deg)
+        t = np.deg2rad(t_deg)
+        ct = jnp.asarray(cos_theta)[..., None]
+        st = jnp.sqrt(jnp.clip(1.0 - ct**2, 0.0, 1.0))
+        a = jnp.cos(t) * jnp.abs(ct)
+        b = jnp.sin(t) * st
+        ratio = jnp.clip(a / jnp.maximum(b, 1e-300), 0.0, 1.0)
+        crossing = (2.0 / jnp.pi) * (jnp.sqrt(jnp.clip(b**2 - a**2, 0.0)) + a * jnp.arcsin(ratio))
+        mean_abs = jnp.where(a >= b, a, crossing)
+        return jnp.sum(wt * mean_abs, axis=-1)
