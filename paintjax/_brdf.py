@@ -9,6 +9,7 @@ and their sample is the mirror direction with weight R(θ_i).
 from __future__ import annotations
 
 import abc
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -65,7 +66,7 @@ class MirrorBRDF(AbstractPlateletBRDF):
     metal_index: complex = eqx.field(static=True)
     n_binder: float = eqx.field(static=True)
     reflectance: float | None = eqx.field(static=True)
-    is_delta = True
+    is_delta: ClassVar[bool] = True
 
     def __init__(self, *, wavelength_um: float = 0.55, n_binder: float = 1.5, metal_index=None, reflectance=None):
         _check_reflectance(reflectance)

@@ -67,8 +67,8 @@ def single_scatter_brdf(
     platelet: AbstractPlateletBRDF,
     *,
     exit_occlusion: bool = True,
-    tilt_nodes: int = 128,
-    azimuth_nodes: int = 96,
+    tilt_nodes: int = 256,
+    azimuth_nodes: int = 256,
 ) -> Float[Array, "..."]:
     """BRDF f_in(ω_i, ω_o) [1/sr] of the platelet layer, inside the coat (paint frame, z up).
 
@@ -77,7 +77,8 @@ def single_scatter_brdf(
         tilt: platelet tilt law.
         platelet: platelet BRDF; mirrors use the closed form, others tilt/azimuth quadrature.
         exit_occlusion: attenuate the exiting ray by the same platelet medium (reciprocal form).
-        tilt_nodes, azimuth_nodes: quadrature sizes for non-delta platelet BRDFs.
+        tilt_nodes, azimuth_nodes: quadrature sizes for non-delta platelet BRDFs (the defaults
+            resolve platelet lobes down to ~0.5° wide; a 0.35° lobe needs them).
     """
     denom = _denominator(tilt, wi, wo, exit_occlusion)
     if platelet.is_delta:

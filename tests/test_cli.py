@@ -1,0 +1,62 @@
+"""The `paintjax` console script: JSON round trip, readable table, clear errors."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import paintjax as pj
+from paintjax._cli import main
+
+
+def test_microfacet_json_round_trip(capsys):
+    assert main(["microfacet", "--sample", "silver1", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"aspecular_deg", "reflectance_factor", "L_star", "flop_index"}
+    assert out["aspecular_deg"] == list(pj.STANDARD_ASPECULAR)
+    s = pj.load_sample("silver1")
+    expected = pj.microfacet_reflectance_factor(pj.ma98_geometry(), pj.GammaTilt(s.tilt_shape.value, s.tilt_scale.value))
+    np.testing.assert_allclose(out["reflectance_factor"], np.asarray(expected), rtol=1e-12)
+    L = np.asarray(out["L_star"])
+    np.testing.assert_allclose(L, pj.lightness_np(100 * np.asarray(out["reflectance_factor"])), atol=1e-9)
+    assert out["flop_index"] == pytest.approx(float(pj.flop_index(L[0], L[2], L[4])))
+
+
+def test_microfacet_overrides_change_the_answer(capsys):
+    main(["microfacet", "--sample", "silver1", "--json"])
+    base = json.loads(capsys.readouterr().out)
+    main(["microfacet", "--sample", "silver1", "--shape", "3.5", "--scale", "3", "--reflectance", "0.5", "--json"])
+    other = json.loads(capsys.readouterr().out)
+    assert other["L_star"][0] < base["L_star"][0]
+
+
+def test_readable_table(capsys):
+    assert main(["microfacet", "--sample", "silver2"]) == 0
+    text = capsys.readouterr().out
+    assert "flop index" in text and "4.33°" in text and "129.0" in text
+
+
+@pytest.mark.parametrize(
+    "argv,needle",
+    [
+        (["microfacet", "--sample", "gold"], "unknown sample"),
+        (["microfacet", "--shape", "-2"], "shape"),
+        (["microfacet", "--scale", "0"], "scale"),
+        (["microfacet", "--reflectance", "1.5"], "reflectance"),
+        (["microfacet", "--n", "0.5"], "refractive index"),
+    ],
+)
+def test_bad_input_is_a_one_line_error(argv, needle, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert needle in err and "Traceback" not in err
+
+
+def test_console_script_runs_as_a_user_would():
+    exe = os.path.join(os.path.dirname(sys.executable), "paintjax")
+    proc = subprocess.run([exe, "microfacet", "--sample", "silver1", "--json"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert len(json.loads(proc.stdout)["L_star"]) == 5
