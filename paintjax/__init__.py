@@ -6,6 +6,19 @@ Float64 is *not* enabled on import. The CLI, the experiments and the tests enabl
 
 from ._aluminium import RAKIC1995_550NM, aluminium_index, aluminium_permittivity, aluminium_reflectance
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF, reflect
+from ._beckmann import AbstractLobeBRDF, BeckmannBRDF
+from ._brdf_table import (
+    BRDFTableGrid,
+    InPlaneLobes,
+    TabulatedBRDF,
+    kirchhoff_lobes,
+    platelet_brdf_grid,
+    platelet_brdf_table,
+    platelet_table_arrays,
+    table_from_lobes,
+)
+from ._cache import cache_key, cached_arrays, default_cache_dir
+from ._he_torrance import HeTorranceBRDF
 from ._instrument import (
     ASPECULAR_15,
     ASPECULAR_45,
@@ -27,8 +40,34 @@ from ._lightness import (
     spectral_weights,
 )
 from ._microfacet import microfacet_lightness, microfacet_reflectance_factor, single_scatter_brdf
+from ._grid import UniformGrid, build_grid, candidate_pairs
+from ._microstructure import (
+    GenerationLog,
+    PlateletArray,
+    array_statistics,
+    cross_section,
+    generate_platelet_array,
+    overlapping_pairs,
+    platelet_array_for_sample,
+    tilt_ks,
+)
 from ._optics import coat_internal_diffuse_reflectance, fresnel_conductor, fresnel_dielectric, snell_cos
+from ._overlap import midplane_overlap, obb_overlap, periodic_overlap, tri_tri_intersect
 from ._samples import Measured, Sample, load_sample, sample_names
+from ._sizes import LogNormalSizes, PolynomialCDFSizes, SizeDistribution, TabulatedCDFSizes, default_sizes
 from ._tilt import GammaTilt
+
+from ._hankel import hankel0, hankel01, hankel1
+from ._profiles import (
+    LineScan,
+    Profiles,
+    load_line_scan,
+    process_line_scan,
+    profile_statistics,
+    profiles_from_heights,
+    synthesize_profiles,
+)
+from ._wave import WaveLobes, flat_profiles, max_incidence_deg, profile_averaged_lobes, solve_profiles
+from ._wave_approx import kirchhoff_coherent_fraction, kirchhoff_sigma, spm_sigma, spm_sigma_realisation
 
 __version__ = "0.1.0"

@@ -1,0 +1,754 @@
+"""Tabulated wave-based platelet BRDF: in-plane wave lobes → isotropic 3-D BRDF the tracer samples.
+
+**Input.** Any in-plane lobe source with the fields of `paintjax._wave.WaveLobes`: `incidence_deg`
+(I,), `theta_s_deg` (S,) (θ_s > 0 on the specular side), `sigma` (I, S) total normalised bistatic
+coefficient [1/rad] (∫σ dθ_s = reflected fraction), `sigma_coherent` (I, S), `reflected` (I,),
+`absorbed` (I,). Sources: the wave solver (`source="wave"`, default) or the 1-D Kirchhoff closed
+form (`kirchhoff_lobes`, used to validate the 2-D → 3-D step against `BeckmannBRDF`).
+
+**Model.** The incoherent BRDF is written, in direction cosines β (see `paintjax._beckmann`),
+
+    f_inc(ω_i, ω_o) = a(μ_i) a(μ_o) L(ρ; μ̄) / (μ_i μ_o),   ρ = |β_i + β_o|,  μ̄ = (μ_i + μ_o)/2,
+
+an isotropic lobe about the specular point (Harvey–Shack) whose shape depends on the mean cosine
+μ̄ = c/2 (the Kirchhoff q_z): the analytic Kirchhoff BRDF of a Gaussian surface is exactly of this
+form, and the form is reciprocal by construction. L(ρ; μ) = Σ_k C_k(μ) e^{−ρ²/w_k²} on fixed
+widths w_k, tabulated at the source incidences θ_j (μ_j = cosθ_j) and interpolated linearly in μ.
+
+**2-D → 3-D (inverse Abel).** For an isotropic surface the in-plane lobe per unit β,
+p(u) = σ_inc(θ_s)/cosθ_s at u = sinθ_s − sinθ_i, is the projection of the 2-D lobe on the plane
+of incidence. Each in-plane sample (any incidence, cosθ_s > 0.1) is assigned to its mean cosine
+μ̄; the coefficients C_j of node j are the non-negative least-squares fit (relative weighting
+down to 1 % of the peak, hat weights in μ̄) of p μ_i μ_o by the projections √π w_k e^{−u²/w_k²}
+of the basis — the inverse Abel transform, exact term by term (BASEX-style basis expansion).
+`method="rotate"` instead fits the in-plane *cut* e^{−u²/w_k²} (the original study's
+axisymmetric rotation of the 1-D lobe). Basis widths below `min_width` (1/(kτ) for wave tables)
+are not used, so the speckle of a profile average is not fitted as structure.
+
+**Reflectance.** a(μ) is solved at build time (symmetric Sinkhorn iteration) so that at every
+tabulated incidence ∫_disk f_inc dβ equals the source's incoherent reflectance; with the
+coherent part the albedo equals the source's `reflected`, so absorption is the wave's.
+
+**Outside the unit disk.** The part of the lobe that falls at |β_o| > 1 would be evanescent; it is
+not discarded but redistributed proportionally over the propagating directions by a(μ) (the
+Harvey–Shack renormalisation). The fraction of the incidence's own lobe that fell outside is
+stored (`outside_fraction`) as a diagnostic.
+
+**Coherent part.** R_coh(θ_j) = ∫σ_coh dθ_s, kept as the platelet's diffraction lobe (default) or a
+delta (see `paintjax._beckmann`). For wave sources the profile-averaged coherent coefficient is
+first made unbiased and confined to the specular beam (`debias_coherent`). Unpolarised (the
+source's default). Incidences beyond the last tabulated one (89° by default) use the last table
+(constant extrapolation in μ, documented not silent). Wave tables take incidences above the
+solver's beam limit (≈79° for 20 µm profiles) from the 1-D Kirchhoff shape with a Fresnel-scaled
+reflectance (`_wave_with_grazing_extension`; `wave_solved` records which).
+
+**Sampling.** A Gaussian mixture in β about the specular point: the inverse-Abel lobe of the
+incidence's own in-plane data (`proposal_coef`), plus 2 % uniform over the disk and the coherent
+branch; `pdf` is its exact density, and `sample` weights are f cosθ_o / pdf.
+
+**Grid over (σ, τ).** `BRDFTableGrid.at(σ, τ)` interpolates the stacked table arrays (linear in
+f) with monotone cubic Hermite (PCHIP, Fritsch–Butland slopes) in log σ, then log τ: C¹,
+interpolating at the nodes, non-negative (coefficients stay ≥ 0), differentiable in (σ, τ) for the
+inverse layer. Its albedo is the interpolated reflectance (consistent to the interpolation error).
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import time
+import warnings
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+from scipy.optimize import nnls
+from scipy.special import gammaln as np_gammaln
+
+from ._beckmann import (
+    DEFAULT_PLATELET_WIDTH_UM,
+    AbstractLobeBRDF,
+    check_coherent,
+    check_positive,
+    coherent_lobe_width,
+    disk_quadrature,
+    metal_index_or_aluminium,
+    series_terms,
+)
+from ._cache import cached_arrays
+
+#: Default tabulated incidences [deg] (0–89°).
+DEFAULT_INCIDENCE_DEG = np.concatenate([np.arange(0.0, 88.0, 3.0), [89.0]])
+#: Default fixed Gaussian widths (β units) of the lobe basis.
+DEFAULT_NUM_WIDTHS = 36
+_MIN_WIDTH, _MAX_WIDTH = 0.012, 2.5
+#: Bumped when the table construction changes (part of the cache key).
+TABLE_VERSION = 2
+#: In-plane points closer to grazing than this cosine are not used by the lobe fit.
+COS_MIN = 0.1
+
+
+class InPlaneLobes(eqx.Module):
+    """In-plane lobes with the fields of `paintjax._wave.WaveLobes` (any lobe source).
+
+    Fields: incidence_deg (I,), theta_s_deg (S,), sigma (I, S) [1/rad], sigma_coherent (I, S),
+    reflected (I,), absorbed (I,).
+    """
+
+    incidence_deg: np.ndarray
+    theta_s_deg: np.ndarray
+    sigma: np.ndarray
+    sigma_coherent: np.ndarray
+    reflected: np.ndarray
+    absorbed: np.ndarray
+
+
+def _fresnel_np(cos_i, n1, n2):
+    """Unpolarised metal reflectance on the host (same formula as `fresnel_conductor`)."""
+    cos_i = np.clip(np.abs(cos_i), 0.0, 1.0)
+    cos_t = np.sqrt(1.0 - (n1 / n2) ** 2 * (1.0 - cos_i**2) + 0j)
+    rs = (n1 * cos_i - n2 * cos_t) / (n1 * cos_i + n2 * cos_t)
+    rp = (n2 * cos_i - n1 * cos_t) / (n2 * cos_i + n1 * cos_t)
+    return 0.5 * (np.abs(rs) ** 2 + np.abs(rp) ** 2)
+
+
+def kirchhoff_lobes(
+    sigma_um: float,
+    tau_um: float,
+    *,
+    incidence_deg=DEFAULT_INCIDENCE_DEG,
+    theta_s_deg=None,
+    wavelength_um: float = 0.5,
+    n_medium: float = 1.5,
+    metal_index=None,
+    coherent_width_deg: float = 0.25,
+) -> InPlaneLobes:
+    """In-plane lobes of a 1-D Gaussian metal profile from the Kirchhoff closed form (brief §4).
+
+    σ(θ_s) = R(χ) (1 + cos(θ_i + θ_s))² k / (cosθ_i c²) Σ_m e^{−X} X^m/m! τ/(2√(πm)) e^{−K²τ²/(4m)},
+    c = cosθ_i + cosθ_s, X = (kσc)², K = k(sinθ_s − sinθ_i), χ = |θ_i + θ_s|/2; the coherent part
+    R(θ_i) e^{−(2kσ cosθ_i)²} is a narrow Gaussian in θ_s normalised on the grid.
+
+    Arguments:
+        sigma_um, tau_um: rms height and correlation length [µm].
+        incidence_deg: incidence angles (I,); theta_s_deg: scattering angles (S,) (default 0.25° steps).
+        wavelength_um, n_medium: vacuum wavelength and index of the medium above the metal.
+        metal_index: complex metal index (default aluminium at λ0).
+        coherent_width_deg: standard deviation of the coherent line on the θ_s grid.
+
+    Returns:
+        `InPlaneLobes`.
+    """
+    check_positive("sigma_um", sigma_um, 10.0)
+    check_positive("tau_um", tau_um, 1e3)
+    if theta_s_deg is None:
+        theta_s_deg = np.linspace(-89.75, 89.75, 719)
+    metal = metal_index_or_aluminium(metal_index, wavelength_um)
+    ti = np.deg2rad(np.asarray(incidence_deg, float))[:, None]
+    ts = np.deg2rad(np.asarray(theta_s_deg, float))[None, :]
+    k = 2.0 * np.pi * n_medium / wavelength_um
+    c = np.cos(ti) + np.cos(ts)
+    X = np.maximum((k * sigma_um * c) ** 2, 1e-300)
+    K = k * (np.sin(ts) - np.sin(ti))
+    m = np.arange(1, series_terms(2.0 * k * sigma_um) + 1, dtype=float)
+    log_t = -X[..., None] + m * np.log(X[..., None]) - np_gammaln(m + 1) - 0.5 * np.log(np.pi * m) + np.log(tau_um / 2.0) - (K**2)[..., None] * tau_um**2 / (4 * m)
+    series = np.exp(log_t).sum(-1)
+    R_local = _fresnel_np(np.cos(0.5 * np.abs(ti + ts)), n_medium, metal)
+    sigma_inc = R_local * (1.0 + np.cos(ti + ts)) ** 2 * k / (np.cos(ti) * c**2) * series
+    R_coh = _fresnel_np(np.cos(ti[:, 0]), n_medium, metal) * np.exp(-((2 * k * sigma_um * np.cos(ti[:, 0])) ** 2))
+    line = np.exp(-0.5 * ((ts - ti) / np.deg2rad(coherent_width_deg)) ** 2)
+    line = line / np.trapezoid(line, ts[0], axis=-1)[:, None]
+    sigma_coh = R_coh[:, None] * line
+    sigma = sigma_inc + sigma_coh
+    reflected = np.trapezoid(sigma, ts[0], axis=-1)
+    return InPlaneLobes(np.asarray(incidence_deg, float), np.asarray(theta_s_deg, float), sigma, sigma_coh, reflected, 1.0 - reflected)
+
+
+def as_numpy_lobes(lobes) -> InPlaneLobes:
+    """Any lobe source (fields of `WaveLobes`) as `InPlaneLobes` of numpy arrays."""
+    f = lambda name: np.asarray(getattr(lobes, name), float)  # noqa: E731
+    return InPlaneLobes(f("incidence_deg"), f("theta_s_deg"), f("sigma"), f("sigma_coherent"), f("reflected"), f("absorbed"))
+
+
+def debias_coherent(lobes, num_profiles: int, window_beta: float = 0.08) -> InPlaneLobes:
+    """Coherent part of a profile average made unbiased and confined to the specular beam.
+
+    With N profiles, |⟨ψ⟩_N|² = |⟨ψ⟩|² + (⟨|ψ|²⟩ − |⟨ψ⟩|²)/N on average, so the unbiased coherent
+    coefficient is (N σ_coh − σ)/(N − 1). It is kept within |sinθ_s − sinθ_i| < `window_beta` (the
+    tapered-beam specular peak, ~1/(kg) wide) and set to 0 elsewhere, where it vanishes in
+    expectation; the incoherent part is σ minus the result, so σ itself is unchanged.
+    """
+    lob = as_numpy_lobes(lobes)
+    N = int(num_profiles)
+    coh = (N * lob.sigma_coherent - lob.sigma) / (N - 1) if N > 1 else lob.sigma_coherent
+    ts = np.deg2rad(lob.theta_s_deg)[None, :]
+    ti = np.deg2rad(lob.incidence_deg)[:, None]
+    coh = np.where(np.abs(np.sin(ts) - np.sin(ti)) < window_beta, coh, 0.0)
+    return InPlaneLobes(lob.incidence_deg, lob.theta_s_deg, lob.sigma, coh, lob.reflected, lob.absorbed)
+
+
+def concatenate_lobes(first: InPlaneLobes, second: InPlaneLobes) -> InPlaneLobes:
+    """Lobes of two sources on the same θ_s grid, stacked along incidence."""
+    if first.theta_s_deg.shape != second.theta_s_deg.shape or not np.allclose(first.theta_s_deg, second.theta_s_deg):
+        raise ValueError("lobes to concatenate must share theta_s_deg")
+    cat = lambda name: np.concatenate([getattr(first, name), getattr(second, name)])  # noqa: E731
+    return InPlaneLobes(cat("incidence_deg"), first.theta_s_deg, cat("sigma"), cat("sigma_coherent"), cat("reflected"), cat("absorbed"))
+
+
+def _lobe_widths(num_widths: int = DEFAULT_NUM_WIDTHS) -> np.ndarray:
+    return np.geomspace(_MIN_WIDTH, _MAX_WIDTH, num_widths)
+
+
+def fit_radial_lobe(u, p, weights, widths, method: str = "abel", min_width: float = 0.0):
+    """Radial 2-D lobe coefficients of in-plane data p at distances u from the specular point.
+
+    Model: p(u) ≈ Σ_k C_k B_k(u) with B_k = √π w_k e^{−u²/w_k²} (abel: the projection of
+    L(ρ) = Σ C_k e^{−ρ²/w_k²}) or e^{−u²/w_k²} (rotate: the in-plane cut of L). Non-negative least
+    squares with the given row weights and a tiny ridge; basis widths below `min_width` are not used.
+
+    Returns:
+        (coefficients C (K,), weighted relative rms residual).
+    """
+    A = np.exp(-(u[:, None] ** 2) / widths**2) * (widths >= min_width)
+    if method == "abel":
+        A = A * (np.sqrt(np.pi) * widths)
+    Aw = A * weights[:, None]
+    ridge = 1e-6 * np.linalg.norm(Aw, axis=0).max()
+    c, _ = nnls(np.vstack([Aw, ridge * np.eye(len(widths))]), np.concatenate([p * weights, np.zeros(len(widths))]), maxiter=50 * len(widths))
+    resid = float(np.sqrt(np.mean(((A @ c - p) * weights) ** 2)) / max(np.sqrt(np.mean((p * weights) ** 2)), 1e-300))
+    return c, resid
+
+
+#: Smallest half-width in μ̄ of a node's data window (pools ~±14° about normal incidence).
+MIN_WINDOW_MU = 0.03
+
+
+def _hat(mu, mu_nodes, j):
+    """Triangular data weight of node j in μ̄: reaches the neighbouring nodes, at least ±MIN_WINDOW_MU
+    (near normal incidence the nodes crowd in μ and a node alone would see only |u| ≲ 0.08 of its
+    lobe — too little for an inverse Abel transform); constant beyond the last node."""
+    J = mu_nodes.size
+    up = max(mu_nodes[j - 1] - mu_nodes[j] if j > 0 else 0.0, MIN_WINDOW_MU)
+    down = max(mu_nodes[j] - mu_nodes[j + 1] if j < J - 1 else 0.0, MIN_WINDOW_MU)
+    d = mu - mu_nodes[j]
+    h = np.where(d >= 0, 1.0 - d / up, 1.0 - (-d) / down)
+    if j == 0:
+        h = np.where(d >= 0, 1.0, h)
+    if j == J - 1:
+        h = np.where(d < 0, 1.0, h)
+    return np.clip(h, 0.0, 1.0)
+
+
+def _interp_index(mu, mu_nodes_desc, xp=jnp):
+    """(j0, t): μ between tabulated nodes j0, j0+1 (nodes in ascending incidence, i.e. descending μ)."""
+    J = mu_nodes_desc.shape[0]
+    idx = xp.interp(mu, mu_nodes_desc[::-1], xp.arange(J - 1, -1, -1, dtype=mu_nodes_desc.dtype))
+    j0 = xp.clip(xp.floor(idx).astype(xp.int32), 0, max(J - 2, 0))
+    return j0, idx - j0
+
+
+def _interp_rows(values, j0, t):
+    """Linear interpolation of values (J, ...) at (j0, t) broadcast over leading dims."""
+    if values.shape[0] == 1:
+        return values[jnp.zeros_like(j0)]
+    tt = t.reshape(t.shape + (1,) * (values.ndim - 1))
+    return (1.0 - tt) * values[j0] + tt * values[j0 + 1]
+
+
+def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = DEFAULT_NUM_WIDTHS, min_width: float = 0.0, sinkhorn_iterations: int = 300) -> dict:
+    """Build the table arrays (numpy) from in-plane lobes (basis widths ≥ `min_width`, β units)."""
+    if method not in ("abel", "rotate"):
+        raise ValueError(f"method must be 'abel' or 'rotate', got {method!r}")
+    inc = np.asarray(lobes.incidence_deg, float)
+    if inc.ndim != 1 or inc.size < 1 or np.any(inc < 0) or np.any(inc >= 90) or np.any(np.diff(inc) <= 0):
+        raise ValueError(f"lobes.incidence_deg must be increasing angles in [0, 90), got {inc!r}")
+    ts = np.deg2rad(np.asarray(lobes.theta_s_deg, float))
+    sigma = np.asarray(lobes.sigma, float)
+    sig_coh = np.asarray(lobes.sigma_coherent, float)
+    reflected = np.asarray(lobes.reflected, float)
+    absorbed = np.asarray(lobes.absorbed, float)
+    if sigma.shape != (inc.size, ts.size) or sig_coh.shape != sigma.shape:
+        raise ValueError(f"lobes.sigma and sigma_coherent must have shape {(inc.size, ts.size)}, got {sigma.shape}, {sig_coh.shape}")
+    if not (np.all(np.isfinite(sigma)) and np.all(np.isfinite(sig_coh)) and np.all(np.isfinite(reflected))):
+        raise ValueError("lobes contain non-finite values")
+    widths = _lobe_widths(num_widths)
+    R_coh = np.trapezoid(sig_coh, ts, axis=-1)
+    R_inc = reflected - R_coh
+    if np.any(R_inc < -1e-9) or np.any(R_coh < -1e-9):
+        raise ValueError(f"lobes: coherent part exceeds the reflected fraction (R_coh={R_coh}, reflected={reflected})")
+    R_inc, R_coh = np.maximum(R_inc, 0.0), np.maximum(R_coh, 0.0)  # only round-off (< 1e-9) removed
+    if np.any(reflected > 1.0 + 1e-6):
+        warnings.warn(f"lobe source reflects more than it receives at incidences {inc[reflected > 1 + 1e-6]} deg (not energy conserving)", stacklevel=3)
+    cs = np.cos(ts)
+    sb = np.sin(ts)
+    dbeta = np.abs(np.gradient(sb))
+    J = inc.size
+    mu_nodes = np.cos(np.deg2rad(inc))
+    # in-plane data p(u) per unit β, its mean cosine μ̄ = (μ_i + μ_o)/2 and its fit weight
+    P = (sigma - sig_coh) / np.maximum(cs, 1e-300)
+    U = sb[None, :] - np.sin(np.deg2rad(inc))[:, None]
+    MU = 0.5 * (mu_nodes[:, None] + cs[None, :])
+    pmax = np.max(np.where(cs > COS_MIN, P, 0.0), axis=1, keepdims=True)
+    W = np.sqrt(dbeta)[None, :] / (np.maximum(P, 0.0) + 0.01 * np.maximum(pmax, 1e-300))
+    obliquity = mu_nodes[:, None] * cs[None, :]  # f = a a L(ρ; μ̄) / (μ_i μ_o): fit L to p μ_i μ_o
+    valid = np.broadcast_to(cs > COS_MIN, P.shape)
+    coef = np.zeros((J, widths.size))
+    resid = np.zeros(J)
+    prop = np.zeros((J, widths.size))
+    for j in range(J):
+        h = _hat(MU, mu_nodes, j) * valid if J > 1 else valid.astype(float)
+        sel = h > 0
+        if not np.any(sel[j]):  # no data near this incidence's own mean cosine: use its own lobe
+            sel = np.zeros_like(sel)
+            sel[j] = cs > 0.02
+            h = sel.astype(float)
+        coef[j], resid[j] = fit_radial_lobe(U[sel], (P * obliquity)[sel], np.sqrt(h[sel]) * W[sel] / obliquity[sel], widths, method, min_width)
+        # sampling proposal: the shift-invariant lobe of this incidence alone (inverse Abel of p)
+        own = cs > COS_MIN
+        prop[j], _ = fit_radial_lobe(U[j, own], P[j, own], W[j, own], widths, "abel", min_width)
+        if not np.any(prop[j] > 0):  # no lobe: a proposal of the narrowest allowed width
+            prop[j, min(int(np.searchsorted(widths, min_width)), widths.size - 1)] = 1.0
+        prop[j] = prop[j] / np.sum(prop[j] * np.pi * widths**2)
+    # kernel of the symmetric normalisation: ∫_disk a(μ_o) L(ρ; μ̄) dβ at each tabulated incidence
+    wi, wo, wt = disk_quadrature(mu_nodes, xp=np)
+    mu_o = wo[..., 2]
+    rho2 = (wo[..., 0] + wi[:, None, 0]) ** 2 + wo[..., 1] ** 2
+    mu_bar = 0.5 * (mu_nodes[:, None] + mu_o)
+    Kmat = np.zeros((J, J))
+    outside = np.zeros(J)
+    for j in range(J):
+        j0, t = _interp_index(mu_bar[j], mu_nodes, xp=np)
+        c = _interp_rows(coef, j0, t)
+        L = np.sum(c * np.exp(-rho2[j][:, None] / widths**2), -1) * wt[j] / (mu_nodes[j] * mu_o[j])
+        outside[j] = 1.0 - np.sum(np.sum(prop[j] * np.exp(-rho2[j][:, None] / widths**2), -1) * wt[j])
+        k0, s = _interp_index(mu_o[j], mu_nodes, xp=np)
+        if J == 1:
+            Kmat[0, 0] = L.sum()
+        else:
+            np.add.at(Kmat[j], k0, L * (1.0 - s))
+            np.add.at(Kmat[j], k0 + 1, L * s)
+    a = np.where(R_inc > 0, 1.0, 0.0)
+    for _ in range(sinkhorn_iterations):
+        Ka = Kmat @ a
+        a = np.where(R_inc > 0, np.sqrt(a * R_inc / np.maximum(Ka, 1e-300)), 0.0)
+    norm_err = float(np.max(np.abs(a * (Kmat @ a) - R_inc)))
+    return {
+        "incidence_deg": inc,
+        "widths": widths,
+        "coef": coef,
+        "proposal_coef": prop,
+        "scale": a,
+        "reflectance": reflected,
+        "coherent_reflectance": R_coh,
+        "incoherent_reflectance": R_inc,
+        "absorbed": absorbed,
+        "outside_fraction": outside,
+        "fit_residual": resid,
+        "normalisation_error": np.asarray(norm_err),
+        "lobe_theta_s_deg": np.asarray(lobes.theta_s_deg, float),
+        "lobe_sigma": sigma,
+        "lobe_sigma_coherent": sig_coh,
+    }
+
+
+class TabulatedBRDF(AbstractLobeBRDF):
+    """Tabulated isotropic platelet BRDF built from in-plane (wave) lobes over incidence 0–89°.
+
+    Construct with `table_from_lobes` or `platelet_brdf_table`; see the module docstring for the
+    construction. `albedo(cosθ_i)` is the tabulated (wave) reflectance, interpolated in cosθ_i.
+
+    Fields (arrays over tabulated incidences J and basis widths K): incidence_deg (J,), widths (K,),
+    coef (J, K) lobe coefficients C_j, proposal_coef (J, K) unit-mass sampling lobes, scale (J,)
+    symmetric normalisation a, coherent_reflectance_table, incoherent_reflectance_table, absorbed,
+    outside_fraction (J,).
+    """
+
+    incidence_deg: Float[Array, " J"]
+    widths: Float[Array, " K"]
+    coef: Float[Array, "J K"]
+    proposal_coef: Float[Array, "J K"]
+    scale: Float[Array, " J"]
+    coherent_reflectance_table: Float[Array, " J"]
+    incoherent_reflectance_table: Float[Array, " J"]
+    absorbed: Float[Array, " J"]
+    outside_fraction: Float[Array, " J"]
+    coherent: str = eqx.field(static=True)
+    coherent_width: float = eqx.field(static=True)
+
+    def __init__(self, incidence_deg, widths, coef, proposal_coef, scale, coherent_reflectance_table, incoherent_reflectance_table, absorbed, outside_fraction, *, coherent="lobe", coherent_width=0.0083):
+        check_coherent(coherent)
+        check_positive("coherent_width", coherent_width, 1.0)
+        self.incidence_deg, self.widths, self.coef, self.scale = incidence_deg, widths, coef, scale
+        self.proposal_coef = proposal_coef
+        self.coherent_reflectance_table, self.incoherent_reflectance_table = coherent_reflectance_table, incoherent_reflectance_table
+        self.absorbed, self.outside_fraction = absorbed, outside_fraction
+        self.coherent, self.coherent_width = coherent, float(coherent_width)
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, *, coherent: str = "lobe", coherent_width: float = 0.0083) -> "TabulatedBRDF":
+        """A table from the arrays of `platelet_table_arrays` (e.g. read from the cache)."""
+        f = lambda key: jnp.asarray(np.asarray(arrays[key], float))  # noqa: E731
+        return cls(
+            f("incidence_deg"), f("widths"), f("coef"), f("proposal_coef"), f("scale"), f("coherent_reflectance"), f("incoherent_reflectance"),
+            f("absorbed"), f("outside_fraction"), coherent=coherent, coherent_width=coherent_width,
+        )
+
+    @property
+    def mu_nodes(self):
+        return jnp.cos(jnp.deg2rad(self.incidence_deg))
+
+    def _at(self, values, mu):
+        j0, t = _interp_index(jnp.asarray(mu), self.mu_nodes)
+        return _interp_rows(values, j0, t)
+
+    def lobe(self, mu_bar, rho2):
+        """Radial lobe L(ρ; μ̄) (f_inc = a(μ_i) a(μ_o) L / (μ_i μ_o))."""
+        c = self._at(self.coef, mu_bar)
+        return jnp.sum(c * jnp.exp(-rho2[..., None] / self.widths**2), -1)
+
+    def incoherent(self, wi, wo):
+        mi, mo = wi[..., 2], wo[..., 2]
+        rho2 = jnp.sum((wi[..., :2] + wo[..., :2]) ** 2, -1)
+        obl = jnp.maximum(mi * mo, 1e-300)
+        f = self._at(self.scale, mi) * self._at(self.scale, mo) * self.lobe(0.5 * (mi + mo), rho2) / obl
+        return jnp.where((mi > 0) & (mo > 0), f, 0.0)
+
+    def coherent_reflectance(self, cos_i):
+        return self._at(self.coherent_reflectance_table, cos_i)
+
+    def incoherent_albedo(self, cos_i):
+        return self._at(self.incoherent_reflectance_table, cos_i)
+
+    def proposal(self, cos_i):
+        c = self._at(self.proposal_coef, cos_i)
+        probs = c * np.pi * self.widths**2
+        probs = probs / jnp.sum(probs, -1, keepdims=True)
+        return jnp.broadcast_to(self.widths, probs.shape), probs
+
+    def coherent_share(self, cos_i):
+        rc, ri = self.coherent_reflectance(cos_i), self.incoherent_albedo(cos_i)
+        return rc / jnp.maximum(rc + ri, 1e-300)
+
+    def in_plane(self, incidence_deg, theta_o_deg) -> Float[Array, "I O"]:
+        """f in the plane of incidence; θ_o > 0 on the specular side. Shape (len(inc), len(θ_o))."""
+        ti = jnp.deg2rad(jnp.atleast_1d(jnp.asarray(incidence_deg, float)))[:, None]
+        to = jnp.deg2rad(jnp.atleast_1d(jnp.asarray(theta_o_deg, float)))[None, :]
+        wi = jnp.stack(jnp.broadcast_arrays(jnp.sin(ti), 0.0 * to, jnp.cos(ti)), -1)
+        wo = jnp.stack(jnp.broadcast_arrays(-jnp.sin(to), 0.0 * ti, jnp.cos(to)), -1)
+        return self.evaluate(wi, wo)
+
+
+def table_from_lobes(
+    lobes,
+    *,
+    method: str = "abel",
+    coherent: str = "lobe",
+    wavelength_um: float = 0.5,
+    n_medium: float = 1.5,
+    platelet_width_um: float = DEFAULT_PLATELET_WIDTH_UM,
+    coherent_width: float | None = None,
+    num_widths: int = DEFAULT_NUM_WIDTHS,
+    min_width: float = 0.0,
+) -> TabulatedBRDF:
+    """Tabulated BRDF from any in-plane lobe source (fields of `WaveLobes`), uncached.
+
+    Arguments:
+        lobes: in-plane lobes over incidence angles in [0, 90) (increasing).
+        method: "abel" (inverse Abel, default) or "rotate" (axisymmetric rotation of the 1-D lobe).
+        coherent: "lobe" (default) or "delta" for the coherent part.
+        wavelength_um, n_medium, platelet_width_um: set the coherent lobe width λ0/(n D √(2π)).
+        coherent_width: explicit β standard deviation of the coherent lobe.
+        num_widths: number of Gaussian basis widths.
+        min_width: narrowest basis width used (β units); `platelet_table_arrays` uses 1/(kτ),
+            half the narrowest feature of a Gaussian surface's diffuse lobe, so profile-average
+            speckle is not fitted as structure.
+    """
+    check_coherent(coherent)
+    arrays = _table_arrays_from_lobes(lobes, method=method, num_widths=num_widths, min_width=min_width)
+    if coherent_width is None:
+        coherent_width = coherent_lobe_width(wavelength_um, n_medium, platelet_width_um)
+    return TabulatedBRDF.from_arrays(arrays, coherent=coherent, coherent_width=coherent_width)
+
+
+def wave_lobes(sigma_um, tau_um, *, num_profiles: int = 10, seed: int = 0, length_um: float = 20.0, correlation: str = "gaussian", points_per_wavelength=None, **kwargs):
+    """In-plane lobes from the wave solver `paintjax._wave` (imported lazily).
+
+    Equivalent to `profile_averaged_lobes` with the same arguments (same seeded profiles), but the
+    profiles are solved one at a time (`solve_profiles(..., batch_size=1)`): in this sandbox the
+    vmapped batched LU of several profiles was seen to stall the XLA CPU runtime, the serial path
+    did not. Falls back to `profile_averaged_lobes` if those building blocks are not exported.
+    """
+    try:
+        wave = importlib.import_module("paintjax._wave")
+    except ImportError as err:  # pragma: no cover - depends on the wave-solver module
+        raise ValueError("source='wave' needs paintjax._wave.profile_averaged_lobes, which is not available") from err
+    try:
+        from ._profiles import synthesize_profiles
+
+        solve, spacing = wave.solve_profiles, wave.default_spacing
+    except (ImportError, AttributeError):
+        return wave.profile_averaged_lobes(sigma_um, tau_um, num_profiles=num_profiles, seed=seed, length_um=length_um,
+                                           correlation=correlation, points_per_wavelength=points_per_wavelength, **kwargs)
+    dx = spacing(kwargs.get("wavelength_um", 0.5), kwargs.get("n_medium", 1.5), points_per_wavelength)
+    profiles = synthesize_profiles(jax.random.PRNGKey(int(seed)), sigma_um, tau_um, length_um=length_um, spacing_um=dx,
+                                   num_profiles=int(num_profiles), correlation=correlation)
+    inc, ts = kwargs.pop("incidence_deg"), kwargs.pop("theta_s_deg")
+    return solve(profiles, inc, ts, batch_size=1, **kwargs)
+
+
+def platelet_table_arrays(
+    sigma_um: float,
+    tau_um: float,
+    *,
+    source: str = "wave",
+    wavelength_um: float = 0.5,
+    n_medium: float = 1.5,
+    metal_index=None,
+    length_um: float = 20.0,
+    num_profiles: int = 10,
+    seed: int = 0,
+    incidence_deg=None,
+    theta_s_deg=None,
+    boundary: str = "impedance",
+    polarization: str = "unpolarized",
+    correlation: str = "gaussian",
+    points_per_wavelength=None,
+    method: str = "abel",
+    num_widths: int = DEFAULT_NUM_WIDTHS,
+    cache: bool = True,
+    cache_dir=None,
+) -> tuple[dict, dict]:
+    """Arrays of a platelet BRDF table, built or read from the content-hashed cache.
+
+    Returns:
+        (arrays, info) with info = {"cache_hit", "seconds", "key inputs"}.
+    """
+    check_positive("sigma_um", sigma_um, 10.0)
+    check_positive("tau_um", tau_um, 1e3)
+    check_positive("wavelength_um", wavelength_um, 20.0)
+    check_positive("n_medium", n_medium, 5.0)
+    if source not in ("wave", "kirchhoff"):
+        raise ValueError(f"source must be 'wave' or 'kirchhoff', got {source!r}")
+    if method not in ("abel", "rotate"):
+        raise ValueError(f"method must be 'abel' or 'rotate', got {method!r}")
+    inc = DEFAULT_INCIDENCE_DEG if incidence_deg is None else np.asarray(incidence_deg, float)
+    if theta_s_deg is None:
+        theta_s_deg = np.linspace(-89.5, 89.5, 359) if source == "wave" else np.linspace(-89.75, 89.75, 719)
+    ts = np.asarray(theta_s_deg, float)
+    metal = metal_index_or_aluminium(metal_index, wavelength_um)
+    min_width = float(wavelength_um / (2.0 * np.pi * n_medium * tau_um))  # 1/(kτ)
+    inputs = {
+        "table_version": TABLE_VERSION, "source": source, "sigma_um": float(sigma_um), "tau_um": float(tau_um),
+        "wavelength_um": float(wavelength_um), "n_medium": float(n_medium), "metal_index": metal,
+        "incidence_deg": inc, "theta_s_deg": ts, "method": method, "num_widths": int(num_widths),
+    }
+    if source == "wave":
+        wave = importlib.import_module("paintjax._wave") if _wave_available() else None
+        inputs |= {
+            "length_um": float(length_um), "num_profiles": int(num_profiles), "seed": int(seed), "boundary": boundary,
+            "polarization": polarization, "correlation": correlation,
+            "points_per_wavelength": None if points_per_wavelength is None else float(points_per_wavelength),
+            "solver_version": str(getattr(wave, "SOLVER_VERSION", "1")) if wave else "missing",
+        }
+
+    def build():
+        solved = np.ones(inc.size, bool)
+        if source == "wave":
+            lobes = _wave_with_grazing_extension(
+                sigma_um, tau_um, inc, ts, length_um=length_um, num_profiles=num_profiles, seed=seed,
+                wavelength_um=wavelength_um, n_medium=n_medium, boundary=boundary, polarization=polarization,
+                correlation=correlation, points_per_wavelength=points_per_wavelength, metal_index=metal,
+            )
+            solved = np.isin(inc, lobes[1])
+            lobes = lobes[0]
+        else:
+            lobes = kirchhoff_lobes(sigma_um, tau_um, incidence_deg=inc, theta_s_deg=ts, wavelength_um=wavelength_um, n_medium=n_medium, metal_index=metal)
+        out = _table_arrays_from_lobes(lobes, method=method, num_widths=num_widths, min_width=min_width)
+        out["wave_solved"] = solved
+        return out
+
+    t0 = time.perf_counter()
+    arrays, hit = cached_arrays("brdf_table", inputs, build, folder=cache_dir, use_cache=cache)
+    return arrays, {"cache_hit": hit, "seconds": time.perf_counter() - t0}
+
+
+def _wave_with_grazing_extension(sigma_um, tau_um, inc, ts, *, length_um, num_profiles, wavelength_um, n_medium, metal_index, **kw):
+    """Wave lobes up to the solver's largest incidence; beyond it, rescaled 1-D Kirchhoff lobes.
+
+    The Thorsos beam limits the incidence (`paintjax._wave.max_incidence_deg`, ≈79° for 20 µm
+    profiles in the binder). Tabulated incidences above the limit take the *shape* and the coherent
+    share of the 1-D Kirchhoff lobes of the same (σ, τ), and a total reflectance that follows the
+    flat-metal Fresnel reflectance from the last solved incidence: R(θ) = R_wave(θ_last) R_F(θ) /
+    R_F(θ_last) (→ 1 at grazing, never the unphysical growth of the Kirchhoff integral). Which
+    incidences were solved is stored as `wave_solved`.
+
+    Returns:
+        (InPlaneLobes, solved incidences).
+    """
+    wave = importlib.import_module("paintjax._wave")
+    lim = wave.max_incidence_deg(length_um, wavelength_um, n_medium)
+    inc_w, inc_k = inc[inc <= lim], inc[inc > lim]
+    if inc_w.size == 0:
+        raise ValueError(f"incidence_deg must include angles ≤ {lim:.1f}° (the wave solver's limit for length_um={length_um})")
+    lobes = wave_lobes(
+        sigma_um, tau_um, length_um=length_um, num_profiles=num_profiles, incidence_deg=inc_w, theta_s_deg=ts,
+        wavelength_um=wavelength_um, n_medium=n_medium, metal_index=metal_index, **kw,
+    )
+    lobes = debias_coherent(lobes, num_profiles)
+    if inc_k.size:
+        kl = kirchhoff_lobes(sigma_um, tau_um, incidence_deg=inc_k, theta_s_deg=ts, wavelength_um=wavelength_um, n_medium=n_medium, metal_index=metal_index)
+        fres = _fresnel_np(np.cos(np.deg2rad(np.concatenate([inc_w[-1:], inc_k]))), n_medium, metal_index)
+        target = lobes.reflected[-1] * fres[1:] / fres[0]
+        r = (target / kl.reflected)[:, None]
+        ext = InPlaneLobes(inc_k, ts, r * kl.sigma, r * kl.sigma_coherent, target, 1.0 - target)
+        lobes = concatenate_lobes(lobes, ext)
+    return lobes, inc_w
+
+
+def _wave_available() -> bool:
+    return importlib.util.find_spec("paintjax._wave") is not None
+
+
+def platelet_brdf_table(
+    sigma_um: float,
+    tau_um: float,
+    *,
+    coherent: str = "lobe",
+    platelet_width_um: float = DEFAULT_PLATELET_WIDTH_UM,
+    coherent_width: float | None = None,
+    **kwargs,
+) -> TabulatedBRDF:
+    """Platelet BRDF table for roughness (σ, τ) [µm], cached on disk (see `platelet_table_arrays`).
+
+    Arguments:
+        sigma_um, tau_um: rms height and correlation length of the platelet surface [µm].
+        coherent: "lobe" (default) or "delta".
+        platelet_width_um, coherent_width: width of the coherent lobe (see `paintjax._beckmann`).
+        **kwargs: `platelet_table_arrays` options (source, wavelength_um, n_medium, metal_index,
+            length_um, num_profiles, seed, incidence_deg, theta_s_deg, method, cache, cache_dir, ...).
+    """
+    check_coherent(coherent)
+    arrays, _ = platelet_table_arrays(sigma_um, tau_um, **kwargs)
+    if coherent_width is None:
+        coherent_width = coherent_lobe_width(kwargs.get("wavelength_um", 0.5), kwargs.get("n_medium", 1.5), platelet_width_um)
+    return TabulatedBRDF.from_arrays(arrays, coherent=coherent, coherent_width=coherent_width)
+
+
+# ---------------------------------------------------------------------------------------- grid
+_GRID_FIELDS = ("coef", "proposal_coef", "scale", "coherent_reflectance_table", "incoherent_reflectance_table", "absorbed", "outside_fraction")
+
+
+def _stencil(x, n: int):
+    """(start index into the ghost-padded axis, local coordinate t) for fractional grid position x."""
+    i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, n - 2)
+    return i, x - i
+
+
+def _harmonic_slope(a, b):
+    """Fritsch–Butland slope: harmonic mean of the two secants, 0 at a local extremum (C¹, monotone)."""
+    same = a * b > 0
+    den = jnp.where(same, a + b, 1.0)
+    return jnp.where(same, 2.0 * a * b / den, 0.0)
+
+
+def _pchip(p4, t):
+    """Monotone cubic Hermite (PCHIP) between p4[1] and p4[2] at t ∈ [0, 1] (p4: 4 samples)."""
+    s0, s1, s2 = p4[1] - p4[0], p4[2] - p4[1], p4[3] - p4[2]
+    d1, d2 = _harmonic_slope(s0, s1), _harmonic_slope(s1, s2)
+    t = jnp.reshape(t, (1,) * 0 + jnp.shape(t))
+    t2, t3 = t * t, t * t * t
+    return (2 * t3 - 3 * t2 + 1) * p4[1] + (t3 - 2 * t2 + t) * d1 + (-2 * t3 + 3 * t2) * p4[2] + (t3 - t2) * d2
+
+
+def _pad_linear(a, axis):
+    n = a.shape[axis]
+    if n == 1:
+        return a
+    first = 2 * jnp.take(a, jnp.array([0]), axis) - jnp.take(a, jnp.array([1]), axis)
+    last = 2 * jnp.take(a, jnp.array([n - 1]), axis) - jnp.take(a, jnp.array([n - 2]), axis)
+    return jnp.concatenate([first, a, last], axis)
+
+
+class BRDFTableGrid(eqx.Module):
+    """Tables over a (σ, τ) grid, geometric in both, with smooth interpolation `at(σ, τ)`.
+
+    Fields: sigma_um, tau_um (static tuples of node values [µm]), stacked (dict of arrays with leading (Ns, Nt)),
+    incidence_deg, widths; static coherent mode and width.
+    """
+
+    sigma_um: tuple = eqx.field(static=True)
+    tau_um: tuple = eqx.field(static=True)
+    stacked: dict
+    incidence_deg: Float[Array, " J"]
+    widths: Float[Array, " K"]
+    coherent: str = eqx.field(static=True)
+    coherent_width: float = eqx.field(static=True)
+
+    def _position(self, value, nodes, name):
+        n = len(nodes)
+        if n == 1:
+            return jnp.zeros(())
+        lo, hi = nodes[0], nodes[-1]
+        try:
+            v = float(value)
+            if not (lo * (1 - 1e-9) <= v <= hi * (1 + 1e-9)):
+                raise ValueError(f"{name} must lie in the grid range [{lo:g}, {hi:g}] µm, got {value!r}")
+        except (TypeError, jax.errors.ConcretizationTypeError, jax.errors.TracerArrayConversionError):
+            pass  # traced: the end cubic extrapolates (documented)
+        return (jnp.log(value) - np.log(lo)) / (np.log(hi) - np.log(lo)) * (n - 1)
+
+    def at(self, sigma_um, tau_um) -> TabulatedBRDF:
+        """Table at (σ, τ) [µm]: monotone cubic (PCHIP) interpolation in log σ, then log τ, of every
+        tabulated array — C¹, interpolating at the nodes, non-negative, differentiable in (σ, τ).
+        Outside the grid a ValueError names the parameter (traced values: the end cubic extrapolates)."""
+        out = {name: self.stacked[name] for name in _GRID_FIELDS}
+        for axis_nodes, value, name in ((self.sigma_um, sigma_um, "sigma_um"), (self.tau_um, tau_um, "tau_um")):
+            n = len(axis_nodes)
+            x = self._position(value, axis_nodes, name)
+            for field in _GRID_FIELDS:
+                a = out[field]
+                if n == 1:
+                    out[field] = a[0]
+                    continue
+                i, t = _stencil(x, n)
+                p4 = jax.lax.dynamic_slice_in_dim(_pad_linear(a, 0), i, 4, 0)
+                out[field] = _pchip(p4, t)
+        return TabulatedBRDF(
+            self.incidence_deg, self.widths, out["coef"], out["proposal_coef"], out["scale"], out["coherent_reflectance_table"],
+            out["incoherent_reflectance_table"], out["absorbed"], out["outside_fraction"],
+            coherent=self.coherent, coherent_width=self.coherent_width,
+        )
+
+
+def platelet_brdf_grid(
+    sigma_um,
+    tau_um,
+    *,
+    coherent: str = "lobe",
+    platelet_width_um: float = DEFAULT_PLATELET_WIDTH_UM,
+    coherent_width: float | None = None,
+    **kwargs,
+) -> BRDFTableGrid:
+    """Grid of cached platelet tables over geometric σ and τ node lists [µm].
+
+    Arguments:
+        sigma_um, tau_um: node values, increasing and geometric (uniform in log) when more than one.
+        coherent, platelet_width_um, coherent_width: as in `platelet_brdf_table`.
+        **kwargs: `platelet_table_arrays` options shared by all tables.
+    """
+    check_coherent(coherent)
+    s = np.atleast_1d(np.asarray(sigma_um, float))
+    t = np.atleast_1d(np.asarray(tau_um, float))
+    for name, v in (("sigma_um", s), ("tau_um", t)):
+        if np.any(v <= 0) or np.any(np.diff(v) <= 0):
+            raise ValueError(f"{name} grid must be positive and increasing, got {v!r}")
+        if v.size > 2 and not np.allclose(np.diff(np.log(v)), np.log(v[1] / v[0]), rtol=1e-6):
+            raise ValueError(f"{name} grid must be geometric (uniform in log), got {v!r}")
+    tables = [[platelet_table_arrays(a, b, **kwargs)[0] for b in t] for a in s]
+    stacked = {name: jnp.asarray(np.stack([np.stack([tab[key] for tab in row]) for row in tables]))
+               for name, key in zip(_GRID_FIELDS, ("coef", "proposal_coef", "scale", "coherent_reflectance", "incoherent_reflectance", "absorbed", "outside_fraction"))}
+    if coherent_width is None:
+        coherent_width = coherent_lobe_width(kwargs.get("wavelength_um", 0.5), kwargs.get("n_medium", 1.5), platelet_width_um)
+    return BRDFTableGrid(tuple(float(v) for v in s), tuple(float(v) for v in t), stacked, jnp.asarray(tables[0][0]["incidence_deg"]), jnp.asarray(tables[0][0]["widths"]), coherent, float(coherent_width))

@@ -1,0 +1,373 @@
+"""Least-squares fits of microstructure parameters to five-angle L* (Optimistix Levenberg–Marquardt).
+
+Residuals are standardised, r_j = w_j (L*_model,j − L*_meas,j) / s_j with s_j² = σ_instr² +
+error_sd_j² (instrument repeatability, 0.3 L* by default, plus the forward model's own error, e.g. an
+emulator's held-out RMS), and minimised over the unconstrained coordinates u of the free
+parameters (`ParameterSpec`). Several starts (scrambled Sobol points of the prior box, plus an
+optional user start) run as one vmapped solve with ``throw=False``; failed or non-finite starts
+are recorded and skipped, and the lowest χ² among converged starts wins.
+
+Covariance: J = ∂r/∂x at the optimum in *physical* units (chain rule through the bijection),
+C = s² (JᵀJ)⁺ with s² = max(1, χ²/(n − p)) when n > p and s² = 1 otherwise (the Birge-ratio
+inflation: if the residuals exceed the stated noise, the noise is scaled up, never down). A
+`discrepancy` parameter is not fitted by least squares (it is a variance): when freed it is
+estimated afterwards as δ̂² = max(0, Σ(L*_model − L*_meas)²/max(n − p, 1) − σ_instr²).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from ._forward import ForwardModel, Restricted
+from ._parameters import ParameterSpec, make_spec
+
+INSTRUMENT_SD = 0.3
+
+
+@dataclasses.dataclass
+class FitResult:
+    """Outcome of `fit_least_squares`.
+
+    Attributes:
+        names: free parameter names.
+        values, stderr: best-fit values and standard errors per name (physical units).
+        covariance: (p, p) covariance in physical units (scaling in the module docstring).
+        L_star_fit, L_star_measured: model and measured L* per angle.
+        residuals: L_star_fit − L_star_measured (L* units).
+        standardized_residuals: the least-squares residual vector at the optimum.
+        chi2, dof, scale2: χ², n − p and the covariance inflation s².
+        success: whether the best start converged; status: Optimistix result message.
+        n_starts, n_converged: starts tried and converged; starts: per-start (values, χ², status).
+        fixed: values of the fixed forward parameters; discrepancy: δ̂ (if freed) or None.
+        seconds: wall time including compilation.
+    """
+
+    names: tuple[str, ...]
+    values: dict
+    stderr: dict
+    covariance: np.ndarray
+    L_star_fit: np.ndarray
+    L_star_measured: np.ndarray
+    residuals: np.ndarray
+    standardized_residuals: np.ndarray
+    chi2: float
+    dof: int
+    scale2: float
+    success: bool
+    status: str
+    n_starts: int
+    n_converged: int
+    starts: list
+    fixed: dict
+    discrepancy: float | None
+    seconds: float
+    aspecular_deg: np.ndarray = dataclasses.field(default_factory=lambda: np.asarray([]))
+
+    @property
+    def x(self) -> np.ndarray:
+        return np.array([self.values[n] for n in self.names])
+
+    def to_dict(self) -> dict:
+        return {
+            "params": dict(self.values),
+            "stderr": dict(self.stderr),
+            "fixed": dict(self.fixed),
+            "L_star_fit": self.L_star_fit.tolist(),
+            "L_star_measured": self.L_star_measured.tolist(),
+            "residuals": self.residuals.tolist(),
+            "chi2": self.chi2,
+            "dof": self.dof,
+            "covariance_scale": self.scale2,
+            "success": self.success,
+            "status": self.status,
+            "n_starts": self.n_starts,
+            "n_converged": self.n_converged,
+            "discrepancy": self.discrepancy,
+            "seconds": self.seconds,
+        }
+
+    def summary(self) -> str:
+        lines = [f"least squares: {'converged' if self.success else 'NOT converged'} ({self.status}); "
+                 f"{self.n_converged}/{self.n_starts} starts converged; χ² = {self.chi2:.3g} for {self.dof} dof"]
+        for n in self.names:
+            lines.append(f"  {n:>12} = {self.values[n]:.4g} ± {self.stderr[n]:.2g}")
+        if self.discrepancy is not None:
+            lines.append(f"  {'discrepancy':>12} ≈ {self.discrepancy:.3g} L* (moment estimate)")
+        return "\n".join(lines)
+
+
+def check_measured(measured, m: int, name: str = "measured") -> np.ndarray:
+    """Concrete L* vector of length m with finite values in [0, 250] (ValueError otherwise)."""
+    try:
+        y = np.asarray(measured, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be {m} numbers (L* per angle), got {measured!r}") from None
+    if y.size != m:
+        raise ValueError(f"{name} must have {m} values (one L* per angle), got {y.size}")
+    if np.any(~np.isfinite(y)) or np.any(y < 0) or np.any(y > 250):
+        raise ValueError(f"{name} L* values must be finite and lie in [0, 250], got {y.tolist()}")
+    return y
+
+
+def _problem(forward: ForwardModel, free, fixed, bounds):
+    free = tuple(free) if free is not None else tuple(n for n in forward.parameter_names if n not in (fixed or {}) and n != "diffuse")
+    spec_free = [n for n in free if n != "discrepancy"]
+    spec = make_spec(free, {k: v for k, v in (bounds or {}).items()}) if free else None
+    if spec is None:
+        raise ValueError("free must name at least one parameter")
+    sub = make_spec(spec_free, {k: v for k, v in (bounds or {}).items() if k != "discrepancy"}) if spec_free else None
+    if sub is None:
+        raise ValueError("free must include at least one forward-model parameter (not only discrepancy)")
+    fixed = {k: v for k, v in dict(fixed or {}).items()}
+    restricted = Restricted(forward, tuple(spec_free), {k: v for k, v in fixed.items() if k != "discrepancy"})
+    if hasattr(forward, "spec"):  # emulator: stay inside its training box
+        for p in sub.parameters:
+            q = forward.spec.parameters[forward.spec.index(p.name)]
+            if p.lower < q.lower - 1e-12 or p.upper > q.upper + 1e-12:
+                raise ValueError(f"bounds of {p.name} [{p.lower:g}, {p.upper:g}] exceed the emulator's training box [{q.lower:g}, {q.upper:g}]")
+    return spec, sub, restricted
+
+
+def fit_least_squares(
+    forward: ForwardModel,
+    measured,
+    *,
+    free: Sequence[str] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    instrument_sd: float = INSTRUMENT_SD,
+    weights=None,
+    n_starts: int = 8,
+    x0: Mapping[str, float] | None = None,
+    seed: int = 0,
+    max_steps: int = 200,
+    rtol: float = 1e-7,
+    atol: float = 1e-7,
+    jacobian: str = "fd",
+) -> FitResult:
+    """Levenberg–Marquardt fit of the free parameters to measured L*, multi-start.
+
+    Arguments:
+        forward: a jit-able `ForwardModel` (analytic or emulator).
+        measured: L* per angle of `forward.aspecular_deg`.
+        free: parameters to fit (default: all forward inputs except ``diffuse``); may include
+            ``discrepancy`` (moment estimate, see module docstring).
+        fixed: values of other forward inputs (defaults: registered defaults).
+        bounds: `{name: (lower, upper)}` overrides of the registered bounds.
+        instrument_sd: instrument repeatability per angle [L*], > 0.
+        weights: optional non-negative weight per angle multiplying the standardised residual.
+        n_starts: number of starts (≥ 1).
+        x0: optional extra start (physical values of the free parameters).
+        seed: seed of the start design.
+        max_steps, rtol, atol: Optimistix LM settings.
+        jacobian: ``"fd"`` (central differences of the compiled batched forward; default, no
+            extra compilation, works for non-differentiable forwards) or ``"ad"`` (jacfwd).
+
+    Returns:
+        A `FitResult`.
+    """
+    t0 = time.perf_counter()
+    m = len(forward.aspecular_deg)
+    y = check_measured(measured, m)
+    if not (float(instrument_sd) > 0):
+        raise ValueError(f"instrument_sd must be > 0, got {instrument_sd!r}")
+    if int(n_starts) < 1:
+        raise ValueError(f"n_starts must be >= 1, got {n_starts!r}")
+    w = np.ones(m) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
+    if w.shape != (m,) or np.any(~np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
+        raise ValueError(f"weights must be {m} finite non-negative numbers, not all zero, got {weights!r}")
+    spec, sub, restricted = _problem(forward, free, fixed, bounds)
+    s = np.sqrt(float(instrument_sd) ** 2 + np.asarray(forward.error_sd) ** 2)
+
+    args = (jnp.asarray(y), jnp.asarray(w), jnp.asarray(s))
+
+    from scipy.stats import qmc
+
+    z = qmc.Sobol(len(sub), scramble=True, seed=seed).random(int(n_starts))
+    z = np.clip(0.05 + 0.9 * z, 1e-6, 1 - 1e-6)  # keep starts off the very edges of the box
+    u0 = np.log(z) - np.log1p(-z)
+    if x0 is not None:
+        xs = sub.check(sub.from_dict(x0), "x0")
+        eps = 1e-9 * (sub.upper - sub.lower)
+        u0 = np.concatenate([np.asarray(sub.to_unconstrained(np.clip(xs, sub.lower + eps, sub.upper - eps)))[None], u0])
+    solve, residual, jac = _compiled(restricted, sub, max_steps, rtol, atol, jacobian)
+    u_all, codes = solve(jnp.asarray(u0), args)
+    u_all, codes = np.asarray(u_all), np.asarray(codes).reshape(-1)
+    r_all = np.asarray(jax.vmap(residual, in_axes=(0, None))(jnp.asarray(u_all), args))
+    chi2_all = np.sum(r_all**2, axis=1)
+    ok = (codes == 0) & np.isfinite(chi2_all)
+    starts = [
+        {"x": sub.as_dict(np.asarray(sub.from_unconstrained(u))), "chi2": float(c), "status": _message(int(k))}
+        for u, c, k in zip(u_all, chi2_all, codes)
+    ]
+    pool = np.where(ok)[0] if ok.any() else np.where(np.isfinite(chi2_all))[0]
+    if pool.size == 0:
+        raise ValueError("every least-squares start failed (non-finite residuals); check the measured values and bounds")
+    best = int(pool[np.argmin(chi2_all[pool])])
+    u_best = u_all[best]
+    x_best = np.asarray(sub.from_unconstrained(u_best))
+    # Jacobian in physical units: ∂r/∂x = ∂r/∂u · (∂x/∂u)^-1 (the bijection is elementwise).
+    Ju = np.asarray(jac(jnp.asarray(u_best), args))
+    dxdu = np.diag(np.asarray(jax.jacfwd(sub.from_unconstrained)(jnp.asarray(u_best))))
+    Jx = Ju / dxdu[None, :]
+    n_eff = int(np.sum(w > 0))
+    dof = n_eff - len(sub)
+    chi2 = float(chi2_all[best])
+    scale2 = max(1.0, chi2 / dof) if dof > 0 else 1.0
+    cov = scale2 * np.linalg.pinv(Jx.T @ Jx)
+    L_fit = np.asarray(restricted.evaluate(jnp.asarray(x_best)[None])[0])
+    res = L_fit - y
+    values = sub.as_dict(x_best)
+    stderr = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(sub.names)}
+    disc = None
+    if "discrepancy" in spec.names:
+        disc = float(np.sqrt(max(0.0, np.sum((w * res) ** 2) / max(dof, 1) - float(instrument_sd) ** 2)))
+        values["discrepancy"] = disc
+        stderr["discrepancy"] = float("nan")
+    return FitResult(
+        names=spec.names,
+        values={n: values[n] for n in spec.names},
+        stderr={n: stderr[n] for n in spec.names},
+        covariance=cov,
+        L_star_fit=L_fit,
+        L_star_measured=y,
+        residuals=res,
+        standardized_residuals=r_all[best],
+        chi2=chi2,
+        dof=dof,
+        scale2=scale2,
+        success=bool(ok[best]),
+        status=starts[best]["status"],
+        n_starts=len(u0),
+        n_converged=int(ok.sum()),
+        starts=starts,
+        fixed=dict(restricted.fixed),
+        discrepancy=disc,
+        seconds=time.perf_counter() - t0,
+        aspecular_deg=np.asarray(forward.aspecular_deg),
+    )
+
+
+def _message(code: int) -> str:
+    if code == 0:
+        return "successful"
+    try:
+        return str(optx.RESULTS[code]).strip() or f"failed (code {code})"
+    except Exception:  # pragma: no cover - message lookup is cosmetic
+        return f"failed (code {code})"
+
+
+_COMPILED: dict = {}
+
+
+def _callback_map(restricted: Restricted, sub: ParameterSpec, jacobian: str):
+    """u ↦ L* as a `custom_jvp` whose value and Jacobian are computed outside the solver's trace
+    through `jax.pure_callback`.
+
+    Optimistix then traces only this small wrapper. Values come from `batched_forward` (one
+    compiled, fixed-chunk batched forward per model, shared with the posterior and the design);
+    the Jacobian either by forward-mode AD (``"ad"``, compiled separately) or by central
+    differences in u with step 1e-5 (``"fd"``: no extra compilation; also works for forwards
+    that JAX cannot differentiate, e.g. a tracer with common random numbers).
+    """
+    k, m = len(sub), len(restricted.model.aspecular_deg)
+    fwd = batched_forward(restricted, sub)
+    dtype = jnp.result_type(float)
+    if jacobian == "ad":
+        j_batch = jax.jit(jax.vmap(jax.jacfwd(lambda u: restricted.evaluate(sub.from_unconstrained(u)[None])[0])))
+
+        def jac_np(U):
+            return np.asarray(j_batch(U))
+    elif jacobian == "fd":
+        h = 1e-5
+
+        def jac_np(U):
+            E = np.eye(k) * h
+            P = np.concatenate([U[:, None, :] + E[None], U[:, None, :] - E[None]], axis=1).reshape(-1, k)
+            Y = fwd(P).reshape(U.shape[0], 2, k, m)
+            return np.transpose((Y[:, 0] - Y[:, 1]) / (2 * h), (0, 2, 1))
+    else:
+        raise ValueError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
+
+    def host_f(u):
+        u = np.asarray(u)
+        return fwd(u.reshape(-1, k)).astype(dtype).reshape(u.shape[:-1] + (m,))
+
+    def host_j(u):
+        u = np.asarray(u)
+        return jac_np(u.reshape(-1, k)).astype(dtype).reshape(u.shape[:-1] + (m, k))
+
+    @jax.custom_jvp
+    def F(u):
+        return jax.pure_callback(host_f, jax.ShapeDtypeStruct(u.shape[:-1] + (m,), dtype), u, vmap_method="expand_dims")
+
+    @F.defjvp
+    def F_jvp(primals, tangents):
+        (u,), (t,) = primals, tangents
+        J = jax.pure_callback(host_j, jax.ShapeDtypeStruct(u.shape[:-1] + (m, k), dtype), u, vmap_method="expand_dims")
+        return F(u), J @ t
+
+    return F
+
+
+#: Batch size of the compiled forward; calls are padded to a multiple of it (one compilation).
+CHUNK = 16
+_FORWARDS: dict = {}
+
+
+def batched_forward(restricted: Restricted, sub: ParameterSpec, chunk: int = CHUNK):
+    """NumPy function U (n, k) unconstrained → L* (n, m), compiled once per problem for a fixed
+    chunk size and padded, so every batch size reuses the same executable."""
+    key = (id(restricted.model), restricted.fingerprint(), sub.fingerprint(), chunk)
+    if key in _FORWARDS:
+        return _FORWARDS[key][1]
+    if restricted.jittable:
+        f = jax.jit(lambda U: restricted.evaluate(sub.from_unconstrained(U)))
+    else:
+        def f(U):
+            return restricted.model.evaluate(restricted.full(np.asarray(sub.from_unconstrained(U))))
+
+    def fwd(U):
+        U = np.asarray(U, dtype=float)
+        n = U.shape[0]
+        pad = (-n) % chunk
+        Up = np.concatenate([U, np.repeat(U[-1:], pad, axis=0)]) if pad else U
+        out = [np.asarray(f(Up[i:i + chunk])) for i in range(0, Up.shape[0], chunk)]
+        return np.concatenate(out)[:n]
+
+    if len(_FORWARDS) > 16:
+        _FORWARDS.clear()
+    _FORWARDS[key] = (restricted.model, fwd)
+    return fwd
+
+
+def _compiled(restricted: Restricted, sub: ParameterSpec, max_steps: int, rtol: float, atol: float, jacobian: str = "fd"):
+    """(vmapped LM solve, residual, Jacobian) for a problem, compiled once and cached by content."""
+    key = (id(restricted.model), restricted.fingerprint(), sub.fingerprint(), int(max_steps), float(rtol), float(atol), jacobian)
+    if key in _COMPILED:
+        return _COMPILED[key][1:]
+    F = _callback_map(restricted, sub, jacobian)
+
+    def residual(u, args):
+        ys, ws, ss = args
+        return ws * (F(u) - ys) / ss
+
+    solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+
+    def one(u, args):
+        sol = optx.least_squares(residual, solver, u, args, max_steps=max_steps, throw=False)
+        return sol.value, sol.result._value
+
+    solve = jax.jit(jax.vmap(one, in_axes=(0, None)))
+    jac = jax.jit(jax.jacfwd(residual))
+    if len(_COMPILED) > 16:
+        _COMPILED.clear()
+    _COMPILED[key] = (restricted.model, solve, jax.jit(residual), jac)
+    return _COMPILED[key][1:]

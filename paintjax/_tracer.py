@@ -1,0 +1,847 @@
+"""Ray-batch Monte Carlo tracer of a platelet basecoat under a flat clearcoat: the virtual spectrophotometer.
+
+Scene (paint frame, lengths in µm, brief §3/§7): Lambertian primer at z = 0 (albedo ρ), basecoat
+0 < z < h_b holding the platelet boxes of a `PlateletArray` (laterally periodic tile, looked up
+through its `UniformGrid`), clearcoat h_b < z < h_b + h_c of the binder's index n, air above.
+
+Transport.
+* A collimated beam (optionally a uniform cone of half-angle `illumination_aperture_deg`) enters
+  at a uniformly random point of the tile with the flat-interface Fresnel transmittance T_i as a
+  deterministic weight; the reflected 1 − T_i goes to the ledger's top reflection.
+* Straight rays in the binder. The clearcoat has no scatterers: it is crossed in closed form
+  (lateral shift h_c tanθ), so the grid only spans the basecoat.
+* At the clearcoat–air interface from inside, the weight is split deterministically: (1 − R)
+  leaves (scored by the histogram estimator), R is reflected back (R = 1 under total internal
+  reflection above 41.8° for n = 1.5).
+* Platelet boxes (centre ± w/2 u ± w/2 v ± t/2 n) are intersected with a slab test. The face
+  through which a ray enters decides the scattering normal: the top and bottom faces scatter with
+  the platelet BRDF (importance sampled, weight f cos/pdf; the weight lost is the platelet
+  absorption). **Edges**: a ray entering through one of the four side faces (area t·w each, a few
+  per cent of the hits for t = 1 µm, w ≈ 16 µm) is scattered by the same BRDF about that side
+  face's outward normal, i.e. the side walls are aluminium too. Rays starting inside a box (only
+  possible where boxes overlap or stick out of the basecoat) pass through it; box parts above h_b
+  or below 0 are not seen.
+* Lambertian primer at z = 0: weight × ρ, cosine-sampled new direction.
+* Russian roulette below a weight threshold; a cap on the steps per ray (counted in the ledger).
+* Optional random azimuthal rotation of the whole instrument per ray (an average over rotated
+  copies of the tile, which is statistically isotropic): it multiplies the platelet orientations
+  a finite tile offers, which matters for narrow platelet lobes.
+
+Estimators (reflectance factor R = π L / E, brief §3).
+* Next-event estimation: at every non-delta scattering event and for every detector, the BRDF
+  toward the detector's refracted internal direction ω_j (a uniform random direction of the
+  detector's aperture cone when it is finite), a shadow ray to the top of the basecoat through
+  the grid, the exit transmittance T_o and the n² radiance change:
+  R_j += π w f cos V T_o / (n² cosθ_j).
+  Delta (mirror) platelets have no finite BRDF value: for them the tracer scores the exiting
+  weight into each finite detector aperture (the splat of the deterministic mirror direction),
+  so a finite `detector_aperture_deg` is required and the NEE and histogram columns coincide.
+* Histogram: exiting weight landing inside a detector's cone of half-angle α,
+  R_j += π w_exit / (Ω cosθ_air), Ω = 2π(1 − cos α). Both estimate the cone-averaged radiance.
+* Standard errors by batch means over groups of lanes; L* errors by the delta method.
+* Energy ledger per incident unit: top reflection + exited + absorbed by platelets + absorbed by
+  primer + roulette (net, zero in expectation) + caps = 1 exactly, ray by ray.
+
+Wavefront design. A fixed pool of lanes advances in jit-compiled chunks of `steps_per_call`
+steps; a step moves every ray by one event or by at most `cells_per_step` grid cells (3-D DDA,
+periodic in x, y). A lane whose ray has ended is refilled at the next step with the next ray id
+(prefix sum over the dead lanes), so lanes stay busy until the pool drains. Shapes are static: no
+recompilation between calls. Each ray draws its random numbers from a counter-based hash of
+(seed, ray id, step) (an integer finaliser, far cheaper to compile and run than threefry per
+lane), so the result depends on the seed only, not on the schedule or the device count.
+The lanes are split over all local devices with `shard_map`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, PartitionSpec
+from jaxtyping import Array, Float, Int
+
+from ._brdf import AbstractPlateletBRDF, MirrorBRDF
+from ._instrument import Geometry
+from ._lightness import reflectance_factor_to_lightness
+from ._microfacet import _orthonormal_basis, check_coat_index
+from ._optics import fresnel_dielectric
+
+#: Keys of the energy ledger, in order.
+LEDGER_KEYS = ("top_reflection", "exited", "absorbed_platelets", "absorbed_primer", "roulette", "caps")
+_BIG = 1e30
+
+
+class TracerOptions(eqx.Module):
+    """Performance and estimator settings of `trace` (all static).
+
+    Arguments:
+        lanes: rays in flight per device.
+        steps_per_call: steps per jit call (a step = one event or `cells_per_step` cells).
+        cells_per_step: grid cells a ray may cross per step (≥ 2). Shadow rays get as many cells
+            as a ray toward any detector can cross in the basecoat, so they always finish.
+        batches: groups of lanes for the batch-means standard errors (≥ 8).
+        roulette_weight: Russian roulette below this weight (0 disables roulette).
+        max_steps: steps after which a ray is capped (its weight goes to the ledger's caps).
+        randomize_azimuth: rotate the instrument by a random azimuth per ray.
+        chunk_rays: with `target_se`, rays added per round.
+        shadow_roulette: NEE contributions (reflectance-factor units per ray) below this are kept
+            with probability value/threshold and raised to it (unbiased; 0 disables).
+        shadow_buffer: shadow rays traced per pass, as a fraction of lanes × detectors; active
+            shadow rays are compacted into this buffer (more passes run when it overflows).
+        float64: trace in float64 when x64 is enabled (default float32 geometry, which is ample
+            for µm-scale boxes in a sub-mm tile and twice as fast; tallies are float64 under x64).
+    """
+
+    lanes: int = eqx.field(static=True, default=8192)
+    steps_per_call: int = eqx.field(static=True, default=16)
+    cells_per_step: int = eqx.field(static=True, default=3)
+    batches: int = eqx.field(static=True, default=32)
+    roulette_weight: float = eqx.field(static=True, default=0.05)
+    max_steps: int = eqx.field(static=True, default=300)
+    randomize_azimuth: bool = eqx.field(static=True, default=True)
+    chunk_rays: int = eqx.field(static=True, default=65536)
+    float64: bool = eqx.field(static=True, default=False)
+    shadow_roulette: float = eqx.field(static=True, default=0.02)
+    shadow_buffer: float = eqx.field(static=True, default=0.25)
+
+    def __check_init__(self):
+        for name, v, lo in (("lanes", self.lanes, 1), ("steps_per_call", self.steps_per_call, 1),
+                            ("cells_per_step", self.cells_per_step, 2), ("batches", self.batches, 8),
+                            ("max_steps", self.max_steps, 1), ("chunk_rays", self.chunk_rays, 1)):
+            if int(v) < lo:
+                raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
+        if self.lanes % self.batches:
+            raise ValueError(f"lanes ({self.lanes}) must be a multiple of batches ({self.batches})")
+        if not (0.0 <= self.shadow_roulette < 10.0):
+            raise ValueError(f"shadow_roulette must lie in [0, 10), got {self.shadow_roulette!r}")
+        if not (0.0 < self.shadow_buffer <= 1.0):
+            raise ValueError(f"shadow_buffer must lie in (0, 1], got {self.shadow_buffer!r}")
+        if not (0.0 <= self.roulette_weight < 1.0):
+            raise ValueError(f"roulette_weight must lie in [0, 1), got {self.roulette_weight!r}")
+
+
+class TraceResult(eqx.Module):
+    """Reflectance factors, L* and the energy ledger of one tracer run (NumPy arrays, per detector).
+
+    `reflectance_factor` is the NEE estimate (for delta platelets: the aperture splat),
+    `histogram_reflectance_factor` the finite-aperture histogram of exiting rays (0 for zero
+    apertures). Standard errors are batch means over `batches` groups of lanes.
+    """
+
+    aspecular_deg: np.ndarray
+    reflectance_factor: np.ndarray
+    reflectance_factor_se: np.ndarray
+    L_star: np.ndarray
+    L_star_se: np.ndarray
+    histogram_reflectance_factor: np.ndarray
+    histogram_se: np.ndarray
+    energy: dict
+    rays: int
+    seconds: float
+    batch_reflectance_factor: np.ndarray  # (batches, m) NEE estimate of each batch
+    batch_histogram: np.ndarray  # (batches, m)
+
+    def to_dict(self) -> dict:
+        """The `paintjax simulate --json` form."""
+        return {
+            "aspecular_deg": self.aspecular_deg,
+            "reflectance_factor": self.reflectance_factor,
+            "reflectance_factor_se": self.reflectance_factor_se,
+            "L_star": self.L_star,
+            "L_star_se": self.L_star_se,
+            "energy": dict(self.energy),
+            "rays": self.rays,
+            "seconds": self.seconds,
+        }
+
+
+# ----------------------------------------------------------------------------------------------
+# Scene
+
+
+class _Scene(eqx.Module):
+    cols: tuple  # (cx, cy, cz, ux, uy, uz, nx, ny, nz, w/2), each padded (N_pad,); padding = dummy
+    cells: Int[Array, "ncell_pad C_pad"]  # platelet indices, −1 mapped to a dummy entry
+    grid_n: Int[Array, "3"]
+    cell_size: Float[Array, "3"]
+    tile: Float[Array, "2"]
+    half_t: Float[Array, ""]
+    h_b: Float[Array, ""]
+    h_c: Float[Array, ""]
+    n: Float[Array, ""]
+    albedo: Float[Array, ""]
+    eps: Float[Array, ""]
+    illum_air: Float[Array, "3"]
+    illum_cos_alpha: Float[Array, ""]
+    det_air: Float[Array, "m 3"]
+    det_cos_alpha: Float[Array, ""]
+    brdf: AbstractPlateletBRDF
+    max_cells: int = eqx.field(static=True)  # budget of a ray's step
+    shadow_cells: int = eqx.field(static=True)  # budget of a shadow ray (always enough)
+
+
+def _bucket(x: int, q: int) -> int:
+    return max(q, -(-int(x) // q) * q)
+
+
+def _pack_platelets(array, dtype, n_pad: int) -> tuple:
+    c = np.asarray(array.centers, dtype=float).reshape(-1, 3)
+    nrm = np.asarray(array.normals, dtype=float).reshape(-1, 3)
+    u = np.asarray(array.axes_u, dtype=float).reshape(-1, 3)
+    w = np.asarray(array.widths, dtype=float).reshape(-1)
+    packed = np.concatenate([c, u, nrm, w[:, None] / 2], axis=-1)
+    dummy = np.array([0.0, 0.0, -1e6, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0])  # far below, zero size: never hit
+    packed = np.concatenate([packed, np.broadcast_to(dummy, (n_pad - len(c), 10))], axis=0)
+    return tuple(jnp.asarray(packed[:, k], dtype) for k in range(packed.shape[1]))
+
+
+def _shadow_cell_bound(shape, cell, h_b, det_in) -> int:
+    """Cells a ray toward any detector crosses at most from inside the basecoat to its top."""
+    nx, ny, nz = shape
+    cz = np.maximum(np.abs(det_in[:, 2]), 1e-3)
+    lateral = h_b * np.sqrt(1.0 - cz**2) / cz
+    return int(nz + int(np.ceil(np.max(lateral) / cell[0])) + int(np.ceil(np.max(lateral) / cell[1])) + 1)
+
+
+# ----------------------------------------------------------------------------------------------
+# Geometry helpers (single ray; vmapped by the callers)
+
+
+def _rotz(v, c, s):
+    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1], v[..., 2]], axis=-1)
+
+
+def _cone(axis, cos_alpha, u1, u2):
+    """Uniform direction in the cap of half-angle α around `axis` (u1, u2 uniform); α = 0 gives axis."""
+    c = 1.0 - u1 * (1.0 - cos_alpha)
+    s = jnp.sqrt(jnp.clip(1.0 - c * c, 0.0, 1.0))
+    phi = 2.0 * jnp.pi * u2
+    t1, t2 = _orthonormal_basis(axis)
+    return (s * jnp.cos(phi))[..., None] * t1 + (s * jnp.sin(phi))[..., None] * t2 + c[..., None] * axis
+
+
+def _refract_in(w_air, n):
+    t = w_air[..., :2] / n
+    return jnp.concatenate([t, jnp.sqrt(jnp.clip(1.0 - jnp.sum(t * t, -1, keepdims=True), 0.0, 1.0))], axis=-1)
+
+
+def _to_local(w, t1, t2, nrm):
+    return jnp.stack([jnp.sum(w * t1, -1), jnp.sum(w * t2, -1), jnp.sum(w * nrm, -1)], axis=-1)
+
+
+def _slab(q, ox, oy, oz, dx, dy, dz, half_t):
+    """Slab test of rays o + t d (o relative to the box centres) against boxes with columns q.
+
+    Written component by component (no reductions over length-3 axes, per-column gathers):
+    this is the hot loop. Returns (t_in, t_out, (tn_u, tn_v, tn_n), (d_u, d_v, d_n)).
+    """
+    ux, uy, uz, nx, ny, nz, hw = q
+    vx, vy, vz = ny * uz - nz * uy, nz * ux - nx * uz, nx * uy - ny * ux
+    tns, tfs, das = [], [], []
+    for ax, ay, az, h in ((ux, uy, uz, hw), (vx, vy, vz, hw), (nx, ny, nz, half_t)):
+        oa = ox * ax + oy * ay + oz * az
+        da = dx * ax + dy * ay + dz * az
+        da = jnp.where(jnp.abs(da) < 1e-15, jnp.where(da >= 0, 1e-15, -1e-15), da)
+        inv = 1.0 / da
+        t1 = (-h - oa) * inv
+        t2 = (h - oa) * inv
+        tns.append(jnp.minimum(t1, t2))
+        tfs.append(jnp.maximum(t1, t2))
+        das.append(da)
+    t_in = jnp.maximum(jnp.maximum(tns[0], tns[1]), tns[2])
+    t_out = jnp.minimum(jnp.minimum(tfs[0], tfs[1]), tfs[2])
+    return t_in, t_out, tns, das
+
+
+def _gather(sc: _Scene, j):
+    return tuple(col.at[j].get(mode="promise_in_bounds") for col in sc.cols)
+
+
+def _traverse(sc: _Scene, p, d, t_limit, any_hit: bool, max_cells: int):
+    """3-D DDA through at most `max_cells` periodic cells from p along d, up to distance t_limit.
+
+    Single ray (vmapped by the callers); `any_hit` stops at the first occluder
+    (shadow rays). Returns (t_best, index_best, image shift (2,), t_reached, finished). A hit
+    exists when t_best < t_limit; `finished` is False when the cell budget ran out before a
+    decision, and the ray must resume at p + t_reached d.
+    """
+    dtype = p.dtype
+    gn = sc.grid_n
+    nx, ny, nz = gn[0], gn[1], gn[2]
+    cs = sc.cell_size
+    Lx, Ly = sc.tile[0], sc.tile[1]
+    px, py, pz = p[0], p[1], p[2]
+    dx, dy, dz = d[0], d[1], d[2]
+
+    def axis_init(pc, dc, c, n):
+        small = jnp.abs(dc) < 1e-15
+        i = jnp.clip(jnp.floor(pc / c).astype(jnp.int32), 0, n - 1)
+        pos_dir = dc >= 0
+        step = jnp.where(pos_dir, 1, -1).astype(jnp.int32)
+        bnd = (i + pos_dir.astype(jnp.int32)).astype(dtype) * c
+        safe = jnp.where(small, 1.0, dc)
+        tmax = jnp.where(small, _BIG, (bnd - pc) / safe)
+        tdel = jnp.where(small, _BIG, c / jnp.abs(safe))
+        return i, step, tmax.astype(dtype), tdel.astype(dtype)
+
+    ix, sx_, tmx, tdx = axis_init(px, dx, cs[0], nx)
+    iy, sy_, tmy, tdy = axis_init(py, dy, cs[1], ny)
+    iz, sz_, tmz, tdz = axis_init(pz, dz, cs[2], nz)
+    dummy = sc.cols[0].shape[0] - 1
+
+    def body(_, carry):
+        ix, iy, iz, tmx, tmy, tmz, tb, jb, bsx, bsy, treach, done = carry
+        t_exit = jnp.minimum(jnp.minimum(tmx, tmy), tmz)
+        flat = (jnp.mod(ix, nx) * ny + jnp.mod(iy, ny)) * nz + jnp.clip(iz, 0, nz - 1)
+        cand = sc.cells.at[flat].get(mode="promise_in_bounds")
+        qx, qy, qz, *q = _gather(sc, cand)
+        shx = Lx * jnp.round(((ix.astype(dtype) + 0.5) * cs[0] - qx) / Lx)
+        shy = Ly * jnp.round(((iy.astype(dtype) + 0.5) * cs[1] - qy) / Ly)
+        t_in, t_out, _, _ = _slab(q, px - qx - shx, py - qy - shy, pz - qz, dx, dy, dz, sc.half_t)
+        ok = (t_in <= t_out) & (t_in > 0.0) & (t_in < tb)
+        tt = jnp.where(ok, t_in, _BIG)
+        k = jnp.argmin(tt)
+        tk = tt[k]
+        better = (tk < _BIG) & ~done
+        tb = jnp.where(better, tk, tb)
+        jb = jnp.where(better, cand[k], jb)
+        bsx = jnp.where(better, shx[k], bsx)
+        bsy = jnp.where(better, shy[k], bsy)
+        finish = done | (t_exit >= t_limit) | (tb <= t_exit)
+        if any_hit:
+            finish = finish | (tb < t_limit)
+        treach = jnp.where(done, treach, jnp.minimum(t_exit, t_limit))
+        mx = (tmx <= tmy) & (tmx <= tmz)
+        my = ~mx & (tmy <= tmz)
+        mz = ~mx & ~my
+        go = ~finish
+        ix = jnp.where(go & mx, ix + sx_, ix)
+        iy = jnp.where(go & my, iy + sy_, iy)
+        iz = jnp.where(go & mz, iz + sz_, iz)
+        tmx = jnp.where(go & mx, tmx + tdx, tmx)
+        tmy = jnp.where(go & my, tmy + tdy, tmy)
+        tmz = jnp.where(go & mz, tmz + tdz, tmz)
+        finish = finish | (iz < 0) | (iz >= nz)
+        return ix, iy, iz, tmx, tmy, tmz, tb, jb, bsx, bsy, treach, finish
+
+    zero = jnp.zeros((), dtype)
+    init = (ix, iy, iz, tmx, tmy, tmz, jnp.asarray(t_limit, dtype), jnp.asarray(dummy, jnp.int32), zero, zero, zero, jnp.asarray(False))
+    out = jax.lax.fori_loop(0, max_cells, body, init)
+    _, _, _, _, _, _, tb, jb, bsx, bsy, treach, done = out
+    return tb, jb, jnp.stack([bsx, bsy]), treach, done
+
+
+def _face_normal(sc: _Scene, j, shift, x_hit, d):
+    """Outward normal of the face of box j (image `shift`) through which direction d entered."""
+    qx, qy, qz, *q = _gather(sc, j)
+    o = x_hit - d
+    _, _, tns, das = _slab(q, o[0] - qx - shift[0], o[1] - qy - shift[1], o[2] - qz, d[0], d[1], d[2], sc.half_t)
+    ux, uy, uz, nx, ny, nz, _ = q
+    u = jnp.stack([ux, uy, uz])
+    n = jnp.stack([nx, ny, nz])
+    v = jnp.cross(n, u)
+    is_u = (tns[0] >= tns[1]) & (tns[0] >= tns[2])
+    is_v = ~is_u & (tns[1] >= tns[2])
+    axis = jnp.where(is_u, u, jnp.where(is_v, v, n))
+    da = jnp.where(is_u, das[0], jnp.where(is_v, das[1], das[2]))
+    return -jnp.sign(da) * axis
+
+
+# ----------------------------------------------------------------------------------------------
+# One step of one lane
+
+
+_NU = 8  # uniforms per step besides the per-detector aperture jitter and shadow roulette
+
+
+def _mix(x):
+    """32-bit integer finaliser (Wellons' lowbias32): full avalanche in five cheap operations."""
+    x = x ^ (x >> 16)
+    x = x * jnp.uint32(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * jnp.uint32(0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def _ray_hash(seed, rid, step):
+    """Counter-based 32-bit state of (seed, ray id, step): the ray's random stream at this step."""
+    r = rid.astype(jnp.uint32) if rid.dtype.itemsize <= 4 else (rid.astype(jnp.uint64) ^ (rid.astype(jnp.uint64) >> 32)).astype(jnp.uint32)
+    h = _mix(seed ^ _mix(r * jnp.uint32(0x9E3779B9) + jnp.uint32(0x632BE5AB)))
+    return _mix(h + _mix(step.astype(jnp.uint32) + jnp.uint32(0x85EBCA6B)))
+
+
+def _uniforms(h, count: int, dtype):
+    """`count` uniforms in [0, 1) from a ray-step state h (24 random bits each)."""
+    k = jnp.arange(1, count + 1, dtype=jnp.uint32) * jnp.uint32(0x9E3779B9)
+    bits = _mix(h + k)
+    return ((bits >> 8).astype(dtype) + 0.5) * (1.0 / 16777216.0)
+
+
+def _key_from(h):
+    """A raw threefry key for the platelet BRDF's own sampler."""
+    return jnp.stack([_mix(h ^ jnp.uint32(0xA511E9B3)), _mix(h ^ jnp.uint32(0x63D83595))])
+
+
+def _new_ray(sc: _Scene, u, dtype):
+    """Position, direction, weight, rotation (cos, sin) of a fresh ray from uniforms u (5,)."""
+    phi = 2.0 * jnp.pi * u[4]
+    c, s = jnp.cos(phi), jnp.sin(phi)
+    w_air = _cone(sc.illum_air, sc.illum_cos_alpha, u[2], u[3])
+    w_air = _rotz(w_air, c, s)
+    Ti = 1.0 - fresnel_dielectric(w_air[2], 1.0, sc.n)[2]
+    d = -_refract_in(w_air, sc.n)
+    pos = jnp.stack([u[0] * sc.tile[0], u[1] * sc.tile[1], sc.h_b - sc.eps])
+    return pos.astype(dtype), d.astype(dtype), Ti.astype(dtype), c.astype(dtype), s.astype(dtype)
+
+
+def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
+    """Advance one lane by one step: its pending shadow rays and its ray. Returns (lane, tally)."""
+    pos, d, w, alive, cph, sph, nstep, nev, rid, sh_org, sh_dir, sh_lim, sh_val = ray
+    dtype = pos.dtype
+    m = sc.det_air.shape[0]
+    delta = sc.brdf.is_delta
+    u = _uniforms(key, _NU + 3 * m, dtype)
+    kb = _key_from(key)
+    nee = jnp.zeros(m, dtype)  # NEE is scored by `_shadows` one step later
+
+    # --- traversal to the next event
+    dz = d[2]
+    t_slab = jnp.where(dz > 0, (sc.h_b - pos[2]) / jnp.where(dz > 0, dz, 1.0),
+                       jnp.where(dz < 0, -pos[2] / jnp.where(dz < 0, dz, -1.0), _BIG))
+    t_slab = jnp.maximum(t_slab, 0.0).astype(dtype)
+    tb, jb, sb, treach, fin = _traverse(sc, pos, d, t_slab, False, sc.max_cells)
+
+    hit = alive & fin & (tb < t_slab)
+    top = alive & fin & ~hit & (dz > 0)
+    bottom = alive & fin & ~hit & ~(dz > 0)
+    moving = alive & ~fin
+    event = hit | bottom
+    first = nev == 0
+
+    # --- scattering event: platelet face (BRDF) or primer (Lambert)
+    x_hit = pos + tb * d
+    nf = _face_normal(sc, jb, sb, x_hit, d)
+    x_bot = jnp.concatenate([pos[:2] + t_slab * d[:2], jnp.zeros(1, dtype)])
+    ez = jnp.array([0.0, 0.0, 1.0], dtype)
+    n_ev = jnp.where(hit, nf, ez)
+    x_ev = jnp.where(hit, x_hit, x_bot)
+    t1, t2 = _orthonormal_basis(n_ev)
+    wi_loc = _to_local(-d, t1, t2, n_ev)
+    wo_loc, s_w = sc.brdf.sample(kb, wi_loc)
+    wo_loc = wo_loc.astype(dtype)
+    s_w = jnp.where(jnp.isfinite(s_w), s_w, 0.0).astype(dtype)
+    wo_pl = wo_loc[0] * t1 + wo_loc[1] * t2 + wo_loc[2] * n_ev
+    r = jnp.sqrt(u[5])
+    ph = 2.0 * jnp.pi * u[6]
+    wo_pr = jnp.stack([r * jnp.cos(ph), r * jnp.sin(ph), jnp.sqrt(jnp.clip(1.0 - u[5], 0.0, 1.0))])
+    wo = jnp.where(hit, wo_pl, wo_pr)
+    wo = wo / jnp.maximum(jnp.linalg.norm(wo), 1e-30)
+    factor = jnp.where(hit, s_w, sc.albedo)
+
+    # --- next-event estimation: this event's shadow rays are traced in the next step
+    new_sh_val = jnp.zeros(m, dtype)
+    new_sh_dir = jnp.broadcast_to(ez, (m, 3))
+    new_sh_lim = jnp.zeros(m, dtype)
+    origin = x_ev + sc.eps * n_ev
+    origin = jnp.concatenate([origin[:2], jnp.clip(origin[2:], sc.eps, sc.h_b)])
+    if not delta:
+        uj = u[_NU : _NU + 2 * m].reshape(m, 2)
+        w_air = _cone(sc.det_air, sc.det_cos_alpha, uj[:, 0], uj[:, 1])
+        w_air = _rotz(w_air, cph, sph)
+        w_in = _refract_in(w_air, sc.n)
+        To = 1.0 - fresnel_dielectric(w_air[:, 2], 1.0, sc.n)[2]
+        wo_loc_j = _to_local(w_in, t1[None], t2[None], n_ev[None])
+        f_pl = sc.brdf.evaluate(jnp.broadcast_to(wi_loc, (m, 3)), wo_loc_j).astype(dtype)
+        f = jnp.where(hit, f_pl, sc.albedo / jnp.pi)
+        cos_o = jnp.maximum(wo_loc_j[:, 2], 0.0)
+        val = jnp.pi * w * f * cos_o * To / (sc.n**2 * w_in[:, 2])
+        score = event & (first | ~single)
+        val = jnp.where(score & jnp.isfinite(val) & (val > 0), val, 0.0)
+        if opt.shadow_roulette > 0:  # unbiased roulette on small contributions saves shadow rays
+            small = val < opt.shadow_roulette
+            val = jnp.where(small, jnp.where(u[_NU + 2 * m :] * opt.shadow_roulette < val, opt.shadow_roulette, 0.0), val)
+        new_sh_val = val.astype(dtype)
+        new_sh_dir = w_in.astype(dtype)
+        new_sh_lim = ((sc.h_b - origin[2]) / w_in[:, 2]).astype(dtype)
+
+    # --- top of the basecoat: clearcoat transit, Fresnel split, histogram
+    cz = jnp.where(top, dz, 1.0)
+    shift_c = sc.h_c * d[:2] / cz
+    Rint = fresnel_dielectric(cz, sc.n, 1.0)[2]
+    w_exit = jnp.where(top, w * (1.0 - Rint), 0.0)
+    txy = sc.n * d[:2]
+    ex_air = jnp.concatenate([txy, jnp.sqrt(jnp.clip(1.0 - jnp.sum(txy * txy), 0.0, 1.0))[None]])
+    ex_inst = _rotz(ex_air, cph, -sph)
+    omega = 2.0 * jnp.pi * (1.0 - sc.det_cos_alpha)
+    inside = (jnp.sum(sc.det_air * ex_inst[None], -1) >= sc.det_cos_alpha) & (omega > 0)
+    hist = jnp.where(inside & (w_exit > 0), jnp.pi * w_exit / (jnp.maximum(omega, 1e-30) * jnp.maximum(ex_inst[2], 1e-12)), 0.0)
+    if delta:
+        # mirror platelets: the exiting weight is the splat of the deterministic mirror direction
+        nee = jnp.where(single, hist * (nev <= 1), hist)
+
+    # --- new state and ledger
+    new_w = jnp.where(event, w * factor, jnp.where(top, w * Rint, w))
+    new_d = jnp.where(event, wo, jnp.where(top, d * jnp.array([1.0, 1.0, -1.0], dtype), d))
+    new_pos = jnp.where(hit, x_hit + sc.eps * nf, pos)
+    new_pos = jnp.where(bottom, jnp.concatenate([x_bot[:2], sc.eps[None]]), new_pos)
+    new_pos = jnp.where(top, jnp.concatenate([pos[:2] + t_slab * d[:2] + 2.0 * shift_c, (sc.h_b - sc.eps)[None]]), new_pos)
+    new_pos = jnp.where(moving, pos + (treach + sc.eps) * d, new_pos)
+    new_pos = jnp.concatenate([jnp.mod(new_pos[:2], sc.tile), jnp.clip(new_pos[2:], 0.0, sc.h_b)])
+    absorbed_pl = jnp.where(hit, w * (1.0 - factor), 0.0)
+    absorbed_pr = jnp.where(bottom, w * (1.0 - factor), 0.0)
+    # single scattering: non-delta paths end after their first event (its NEE is scored); delta
+    # paths end at their second event (uncounted, cut before scattering) or at the internal
+    # reflection after the first
+    if delta:
+        second = event & (nev >= 1)
+        cut = single & alive & (second | (top & (nev >= 1)))
+        w_cut = jnp.where(cut, jnp.where(second, w, new_w), 0.0)
+        absorbed_pl = jnp.where(cut & second, 0.0, absorbed_pl)
+        absorbed_pr = jnp.where(cut & second, 0.0, absorbed_pr)
+    else:
+        cut = single & alive & event
+        w_cut = jnp.where(cut, new_w, 0.0)
+    new_w = jnp.where(cut, 0.0, new_w)
+    alive2 = alive & ~cut
+    rr = jnp.zeros((), dtype)
+    if opt.roulette_weight > 0:
+        low = alive2 & (event | top) & (new_w < opt.roulette_weight)
+        survive = u[7] * opt.roulette_weight < new_w
+        rr = jnp.where(low, jnp.where(survive, new_w - opt.roulette_weight, new_w), 0.0)
+        new_w = jnp.where(low, jnp.where(survive, opt.roulette_weight, 0.0), new_w)
+        alive2 = alive2 & ~(low & ~survive)
+    alive2 = alive2 & (new_w > 0)
+    nstep2 = nstep + alive.astype(nstep.dtype)
+    capped = alive2 & (nstep2 >= opt.max_steps)
+    caps = w_cut + jnp.where(capped, new_w, 0.0)
+    alive2 = alive2 & ~capped
+    z = jnp.zeros((), dtype)
+    ledger = jnp.stack([z, w_exit, absorbed_pl, absorbed_pr, rr, caps])
+    ledger = jnp.where(alive, ledger, 0.0)
+    hist = jnp.where(alive, hist, 0.0)
+    if delta:
+        nee = jnp.where(alive, nee, 0.0)
+    tally = jnp.concatenate([nee, hist, ledger, jnp.zeros(1, dtype)])
+    keep_sh = alive & event
+    new_ray = (new_pos.astype(dtype), new_d.astype(dtype), jnp.where(alive2, new_w, 0.0).astype(dtype), alive2, cph, sph,
+               nstep2, nev + event.astype(nev.dtype), rid, origin.astype(dtype), new_sh_dir,
+               new_sh_lim, jnp.where(keep_sh, new_sh_val, 0.0))
+    return new_ray, tally
+
+
+def _shadows(sc: _Scene, opt: TracerOptions, org, sh_dir, sh_lim, sh_val):
+    """Trace the pending shadow rays of all lanes (compacted, in passes of a fixed buffer).
+
+    Returns the NEE increment (lanes, m): the pending values of the visible shadow rays.
+    """
+    B, m = sh_val.shape
+    total = B * m
+    S = max(1, min(total, int(round(opt.shadow_buffer * total))))
+    active = (sh_val > 0).reshape(-1)
+    rank = jnp.cumsum(active.astype(jnp.int32)) - 1
+    count = jnp.sum(active.astype(jnp.int32))
+    dirs = sh_dir.reshape(-1, 3)
+    lims = sh_lim.reshape(-1)
+
+    def cond(c):
+        return c[0] * S < count
+
+    def body(c):
+        r, vis = c
+        sel = active & (rank // S == r)
+        idx = jnp.nonzero(sel, size=S, fill_value=total)[0]
+        ok = idx < total
+        j = jnp.minimum(idx, total - 1)
+        lim = lims[j]
+        tb, _, _, _, fin = jax.vmap(lambda a, b, c_: _traverse(sc, a, b, c_, True, sc.shadow_cells))(org[j // m], dirs[j], lim)
+        seen = ok & fin & (tb >= lim)
+        vis = vis.at[idx].max(seen, mode="drop")
+        return r + 1, vis
+
+    _, vis = jax.lax.while_loop(cond, body, (jnp.asarray(0, jnp.int32), jnp.zeros(total, bool)))
+    return jnp.where(vis.reshape(B, m), sh_val, 0.0)
+
+
+# ----------------------------------------------------------------------------------------------
+# Wavefront driver (one device); shard_map spreads the lanes over devices
+
+
+def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions):
+    """`steps_per_call` wavefront steps on one device's lanes (refill dead lanes, step all)."""
+    ndev = jax.lax.psum(1, "rays")
+    dev = jax.lax.axis_index("rays")
+    idt = state[2].dtype
+
+    def one_step(_, st):
+        rays, tally, next_local = st
+        pos, d, w, alive, cph, sph, nstep, nev, rid, *sh = rays
+        dtype = pos.dtype
+        dead = ~alive
+        rank = jnp.cumsum(dead.astype(idt)) - 1
+        local_id = next_local[0] + rank
+        start = dead & (local_id < n_local)
+        rid = jnp.where(start, local_id * ndev + dev, rid)
+        ug = jax.vmap(lambda r: _uniforms(_ray_hash(key, r, jnp.asarray(0x7FFFFFFF, jnp.uint32)), 5, dtype))(rid)
+        p0, d0, w0, c0, s0 = jax.vmap(lambda uu: _new_ray(sc, uu, dtype))(ug)
+        col = start[:, None]
+        pos, d = jnp.where(col, p0, pos), jnp.where(col, d0, d)
+        w, cph, sph = jnp.where(start, w0, w), jnp.where(start, c0, cph), jnp.where(start, s0, sph)
+        nstep = jnp.where(start, 0, nstep)
+        nev = jnp.where(start, 0, nev)
+        alive = alive | start
+        next_local = next_local + jnp.sum(start).astype(idt)
+        t_start = jnp.zeros_like(tally).at[:, -7].set((1.0 - w0).astype(tally.dtype)).at[:, -1].set(1.0)
+        tally = tally + jnp.where(col, t_start, 0.0)
+        if not sc.brdf.is_delta:
+            nee = _shadows(sc, opt, *sh)
+            tally = tally.at[:, : nee.shape[1]].add(nee.astype(tally.dtype))
+        kstep = jax.vmap(lambda r, t: _ray_hash(key, r, t))(rid, nstep)
+        rays = (pos, d, w, alive, cph, sph, nstep, nev, rid, *sh)
+        rays, inc = jax.vmap(lambda r, k: _step_one(sc, opt, r, k, single))(rays, kstep)
+        return rays, tally + inc.astype(tally.dtype), next_local
+
+    return jax.lax.fori_loop(0, opt.steps_per_call, one_step, state)
+
+
+_RUNNERS: dict = {}
+
+
+def _runner(mesh: Mesh, opt: TracerOptions):
+    key = (mesh, opt)
+    if key not in _RUNNERS:
+        spec = PartitionSpec("rays")
+        rep = PartitionSpec()
+        fn = jax.shard_map(
+            lambda sc, k, st, n, single: _chunk_device(sc, k, st, n, single, opt=opt),
+            mesh=mesh,
+            in_specs=(rep, rep, spec, rep, rep),
+            out_specs=spec,
+            check_vma=False,
+        )
+        _RUNNERS[key] = jax.jit(fn, donate_argnums=(2,))
+    return _RUNNERS[key]
+
+
+def _initial_state(lanes_total: int, ndev: int, m: int, dtype, tdtype, idt):
+    z = lambda *s, t=dtype: jnp.zeros(s, t)  # noqa: E731
+    L = lanes_total
+    rays = (z(L, 3), z(L, 3), z(L), jnp.zeros(L, bool), z(L), z(L), jnp.zeros(L, jnp.int32), jnp.zeros(L, jnp.int32),
+            jnp.zeros(L, idt), z(L, 3), jnp.zeros((L, m, 3), dtype).at[..., 2].set(1.0), z(L, m), z(L, m))
+    tally = z(L, 2 * m + len(LEDGER_KEYS) + 1, t=tdtype)
+    return rays, tally, jnp.zeros(ndev, idt)
+
+
+# ----------------------------------------------------------------------------------------------
+# Public entry point
+
+
+def _seed_state(seed) -> int:
+    try:
+        s = int(seed)
+    except (TypeError, ValueError):
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}") from None
+    if s < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    x = (s * 0x9E3779B97F4A7C15 + 0x2545F491) & 0xFFFFFFFFFFFFFFFF
+    return (x ^ (x >> 29) ^ (x >> 47)) & 0xFFFFFFFF
+
+
+def _check_range(name, value, lo, hi, lo_open=False):
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number, got {value!r}") from None
+    bad = not np.isfinite(v) or v > hi or (v <= lo if lo_open else v < lo)
+    if bad:
+        lb = "(" if lo_open else "["
+        raise ValueError(f"{name} must lie in {lb}{lo:g}, {hi:g}], got {value!r}")
+    return v
+
+
+def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, n: float, clearcoat_thickness: float,
+                primer_albedo: float, dtype=jnp.float32, min_cells: int = 2) -> _Scene:
+    """Pack an array, its grid, the BRDF and the instrument into the tracer's device scene.
+
+    Platelet and cell tables are padded to bucketed sizes and the grid dimensions are traced
+    values, so arrays of similar size (e.g. the two reference samples) share one compilation.
+    """
+    Lx, Ly = (float(x) for x in array.tile)
+    h_b = float(array.basecoat_thickness)
+    shape = tuple(int(s) for s in grid.shape)
+    cell = np.array([Lx / shape[0], Ly / shape[1], h_b / shape[2]])
+    cells = np.asarray(grid.cell_platelets)
+    n_pl = int(np.asarray(array.widths).reshape(-1).shape[0])
+    ncell = shape[0] * shape[1] * shape[2]
+    if cells.ndim != 2 or cells.shape[0] != ncell:
+        raise ValueError(f"grid.cell_platelets must have shape (nx*ny*nz, capacity), got {cells.shape} for shape {shape}")
+    n_pad = _bucket(n_pl + 1, 512)
+    table = np.full((_bucket(ncell, 1024), _bucket(cells.shape[1], 4)), n_pad - 1, dtype=np.int32)
+    table[:ncell, : cells.shape[1]] = np.where(cells < 0, n_pad - 1, cells)
+    det_in = np.asarray(geometry.detectors_in_coat(n), dtype=float)
+    eps = max(1e-9, 64.0 * float(jnp.finfo(dtype).eps)) * max(Lx, Ly, h_b)
+    arr = lambda x: jnp.asarray(np.asarray(x, dtype=float), dtype)  # noqa: E731
+    return _Scene(
+        cols=_pack_platelets(array, dtype, n_pad),
+        cells=jnp.asarray(table),
+        grid_n=jnp.asarray(shape, jnp.int32),
+        cell_size=arr(cell),
+        tile=arr([Lx, Ly]),
+        half_t=arr(0.5 * float(array.thickness)),
+        h_b=arr(h_b),
+        h_c=arr(float(clearcoat_thickness)),
+        n=arr(float(n)),
+        albedo=arr(float(primer_albedo)),
+        eps=arr(eps),
+        illum_air=arr(geometry.illumination_air()),
+        illum_cos_alpha=arr(np.cos(np.deg2rad(geometry.illumination_aperture_deg))),
+        det_air=arr(geometry.detectors_air()),
+        det_cos_alpha=arr(np.cos(np.deg2rad(geometry.detector_aperture_deg))),
+        brdf=brdf,
+        max_cells=int(min_cells),
+        shadow_cells=_shadow_cell_bound(shape, cell, h_b, det_in),
+    )
+
+
+def _default_grid(array):
+    from . import _grid  # the microstructure issue's uniform grid
+
+    for name in ("build_grid", "uniform_grid", "make_grid"):
+        if hasattr(_grid, name):
+            return getattr(_grid, name)(array)
+    if hasattr(_grid.UniformGrid, "build"):
+        return _grid.UniformGrid.build(array)
+    raise ValueError("no grid given and paintjax._grid offers no builder; pass grid=")
+
+
+def _summarise(tally: np.ndarray, m: int, batches: int):
+    lanes = tally.shape[0]
+    groups = tally.reshape(lanes // batches, batches, -1).sum(axis=0)  # lane l -> batch l mod B
+    counts = groups[:, -1]
+    total = tally.sum(axis=0)
+    N = total[-1]
+    est = total[: 2 * m] / N
+    per_batch = groups[:, : 2 * m] / np.maximum(counts, 1)[:, None]
+    wgt = counts / np.mean(counts)
+    se = np.sqrt(np.sum((wgt[:, None] * (per_batch - est)) ** 2, axis=0) / (batches * (batches - 1)))
+    ledger = total[2 * m : 2 * m + len(LEDGER_KEYS)] / N
+    return est, se, per_batch, ledger, int(N)
+
+
+def lightness_with_se(R, se):
+    """L* of reflectance factors and its standard error by the delta method (NumPy)."""
+    R = np.asarray(R, dtype=float)
+    L = np.asarray(reflectance_factor_to_lightness(jnp.asarray(R)))
+    dL = np.asarray(jax.vmap(jax.grad(lambda r: reflectance_factor_to_lightness(r)))(jnp.asarray(np.maximum(R, 1e-12)).reshape(-1))).reshape(R.shape)
+    return L, np.abs(dL) * np.asarray(se)
+
+
+def trace(
+    array,
+    geometry: Geometry,
+    brdf: AbstractPlateletBRDF | None = None,
+    *,
+    grid=None,
+    n: float = 1.5,
+    clearcoat_thickness: float = 50.0,
+    primer_albedo: float = 0.3,
+    rays: int = 262144,
+    seed: int = 0,
+    single_scatter: bool = False,
+    target_se_lstar: float | None = None,
+    max_rays: int | None = None,
+    options: TracerOptions | None = None,
+) -> TraceResult:
+    """Trace rays through a platelet basecoat under a flat clearcoat; five-angle reflectance and L*.
+
+    Arguments:
+        array: `PlateletArray` (centres, normals, axes_u, widths, thickness, tile, basecoat_thickness).
+        geometry: instrument geometry (`ma98_geometry`, `custom_geometry`); delta platelet BRDFs
+            need a finite `detector_aperture_deg`.
+        brdf: platelet BRDF (default: aluminium mirror in the binder).
+        grid: `UniformGrid` of the array (default: built by `paintjax._grid`).
+        n: clearcoat / binder index in (1, 3].
+        clearcoat_thickness: h_c in µm (≥ 0).
+        primer_albedo: Lambertian primer albedo ρ in [0, 1].
+        rays: number of rays (rounded up to a multiple of the device count).
+        seed: random seed; the result depends on it and on `options`, not on the schedule.
+        single_scatter: score only the first scattering event of each path.
+        target_se_lstar: if given, keep adding rays until the L* standard error is at most this at
+            every detector (or `max_rays` is reached); `rays` is then the first round.
+        max_rays: ceiling for `target_se_lstar` (default 64 × rays).
+        options: `TracerOptions`.
+
+    Returns:
+        A `TraceResult`.
+    """
+    check_coat_index(n)
+    _check_range("primer_albedo", primer_albedo, 0.0, 1.0)
+    _check_range("clearcoat_thickness", clearcoat_thickness, 0.0, 1e4)
+    if int(rays) < 1:
+        raise ValueError(f"rays must be a positive integer, got {rays!r}")
+    if target_se_lstar is not None:
+        _check_range("target_se_lstar", target_se_lstar, 0.0, 100.0, lo_open=True)
+    opt = options or TracerOptions()
+    brdf = MirrorBRDF(n_binder=n) if brdf is None else brdf
+    if not isinstance(brdf, AbstractPlateletBRDF):
+        raise ValueError(f"brdf must be an AbstractPlateletBRDF, got {type(brdf).__name__}")
+    if brdf.is_delta and geometry.detector_aperture_deg <= 0:
+        raise ValueError("geometry.detector_aperture_deg must be > 0 for a delta (mirror) platelet BRDF: "
+                         "a mirror sends nothing into an exact direction")
+    if grid is None:
+        grid = _default_grid(array)
+    if bool(np.asarray(getattr(grid, "overflow", False))):
+        raise ValueError("grid.overflow is set: some cell exceeded its capacity; rebuild the grid with a larger capacity")
+    cdt = jnp.float64 if (opt.float64 and jax.config.jax_enable_x64) else jnp.float32
+    sc = build_scene(array, geometry, brdf, grid, n=n, clearcoat_thickness=clearcoat_thickness, primer_albedo=primer_albedo,
+                     dtype=cdt, min_cells=opt.cells_per_step)
+    devices = jax.local_devices()
+    ndev = len(devices)
+    mesh = Mesh(np.array(devices), ("rays",))
+    lanes_total = opt.lanes * ndev
+    m = geometry.num_detectors
+    idt = jnp.int64 if jax.config.jax_enable_x64 else jnp.int32
+    dtype = jnp.result_type(float)
+    run = _runner(mesh, opt)
+    single = jnp.asarray(bool(single_scatter))
+    key = jnp.asarray(np.uint32(_seed_state(seed)))
+    state = _initial_state(lanes_total, ndev, m, cdt, dtype, idt)
+    n_local = -(-int(rays) // ndev)
+    limit_local = -(-int(max_rays if max_rays is not None else 64 * int(rays)) // ndev)
+    t0 = time.perf_counter()
+    while True:
+        nl = jnp.asarray(n_local, idt)
+        while True:
+            state = run(sc, key, state, nl, single)
+            busy = bool(jnp.any(state[0][3]) | jnp.any(state[0][-1] != 0))
+            if not busy and int(jnp.min(state[2])) >= n_local:
+                break
+        est, se, per_batch, ledger, N = _summarise(np.asarray(state[1], dtype=float), m, opt.batches)
+        if target_se_lstar is None:
+            break
+        _, Lse = lightness_with_se(est[:m], se[:m])
+        worst = float(np.max(Lse / target_se_lstar))
+        if worst <= 1.0 or n_local >= limit_local:
+            break
+        grow = int(np.ceil(n_local * (worst**2 * 1.1 - 1.0)))
+        n_local = min(limit_local, n_local + max(grow, opt.lanes))
+    seconds = time.perf_counter() - t0
+    R, Rse = est[:m], se[:m]
+    L, Lse = lightness_with_se(R, Rse)
+    return TraceResult(
+        aspecular_deg=np.asarray(geometry.aspecular_deg, dtype=float),
+        reflectance_factor=R,
+        reflectance_factor_se=Rse,
+        L_star=L,
+        L_star_se=Lse,
+        histogram_reflectance_factor=est[m:],
+        histogram_se=se[m:],
+        energy={k: float(v) for k, v in zip(LEDGER_KEYS, ledger)},
+        rays=N,
+        seconds=seconds,
+        batch_reflectance_factor=per_batch[:, :m],
+        batch_histogram=per_batch[:, m:],
+    )
