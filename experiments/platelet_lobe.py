@@ -26,8 +26,8 @@ OUT = Path(__file__).parent / "output" / "platelet_lobe"
 SIGMA, TAU, LAM, N_MED, LENGTH, COUNT, SEED = 0.051, 0.64, 0.5, 1.5, 20.0, 10, 0
 
 
-def smooth(s, width=12):
-    """Running mean over `width` samples (3° here): a lobe estimate free of the 10-profile speckle."""
+def smooth(s, width=24):
+    """Running mean over `width` samples (6° here, two speckle widths λ/(√2 g)): a lobe estimate that averages the 10-profile speckle."""
     return np.convolve(s, np.ones(width) / width, mode="same")
 
 
@@ -76,7 +76,7 @@ def main():
     for ax, pol in zip(axes, ("te", "tm", "unpolarized")):
         s, sm, ka = data[f"sigma_incoherent_{pol}"], data[f"sigma_incoherent_smoothed_{pol}"], data[f"kirchhoff_{pol}"]
         ax.plot(theta, s / sm.max(), color="C0", lw=0.5, alpha=0.5, label="full wave, 10 profiles (speckle)")
-        ax.plot(theta, sm / sm.max(), color="C0", lw=1.8, label="full wave, 3° running mean")
+        ax.plot(theta, sm / sm.max(), color="C0", lw=1.8, label="full wave, 6° running mean")
         ax.plot(theta, ka / ka.max(), "k--", lw=1.2, label="Kirchhoff")
         ax.set_title(f"{pol}: R = {summary[pol]['reflected']:.3f}, A = {summary[pol]['absorbed']:.3f}", fontsize=9)
         ax.set_xlim(-45, 45)

@@ -70,4 +70,19 @@ from ._profiles import (
 from ._wave import WaveLobes, flat_profiles, max_incidence_deg, profile_averaged_lobes, solve_profiles
 from ._wave_approx import kirchhoff_coherent_fraction, kirchhoff_sigma, spm_sigma, spm_sigma_realisation
 
+from ._design import DesignResult, design_to_target
+from ._fit import FitResult, fit_least_squares
+from ._forward import (
+    AnalyticForward,
+    CallableForward,
+    Emulator,
+    ForwardModel,
+    build_emulator,
+    emulator_check,
+    make_forward,
+    register_forward,
+)
+from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
+from ._posterior import LogPosterior, PosteriorResult, corner_plot, sample_posterior, save_netcdf
+
 __version__ = "0.1.0"

@@ -22,8 +22,10 @@ of incidence. Each in-plane sample (any incidence, cosθ_s > 0.1) is assigned to
 down to 1 % of the peak, hat weights in μ̄) of p μ_i μ_o by the projections √π w_k e^{−u²/w_k²}
 of the basis — the inverse Abel transform, exact term by term (BASEX-style basis expansion).
 `method="rotate"` instead fits the in-plane *cut* e^{−u²/w_k²} (the original study's
-axisymmetric rotation of the 1-D lobe). Basis widths below `min_width` (1/(kτ) for wave tables)
-are not used, so the speckle of a profile average is not fitted as structure.
+axisymmetric rotation of the 1-D lobe). Basis widths below `min_width` (2/(kτ) for tables built
+by `platelet_table_arrays`: the width of the narrowest, m = 1, term of the Kirchhoff series of a
+Gaussian surface) are not used, so the speckle of a profile average — which the memory effect
+repeats about the specular point of every incidence — is not fitted as structure.
 
 **Reflectance.** a(μ) is solved at build time (symmetric Sinkhorn iteration) so that at every
 tabulated incidence ∫_disk f_inc dβ equals the source's incoherent reflectance; with the
@@ -85,7 +87,7 @@ DEFAULT_INCIDENCE_DEG = np.concatenate([np.arange(0.0, 88.0, 3.0), [89.0]])
 DEFAULT_NUM_WIDTHS = 36
 _MIN_WIDTH, _MAX_WIDTH = 0.012, 2.5
 #: Bumped when the table construction changes (part of the cache key).
-TABLE_VERSION = 2
+TABLE_VERSION = 5
 #: In-plane points closer to grazing than this cosine are not used by the lobe fit.
 COS_MIN = 0.1
 
@@ -291,7 +293,8 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
     U = sb[None, :] - np.sin(np.deg2rad(inc))[:, None]
     MU = 0.5 * (mu_nodes[:, None] + cs[None, :])
     pmax = np.max(np.where(cs > COS_MIN, P, 0.0), axis=1, keepdims=True)
-    W = np.sqrt(dbeta)[None, :] / (np.maximum(P, 0.0) + 0.01 * np.maximum(pmax, 1e-300))
+    pmax = np.where(pmax > 0, pmax, 1.0)  # an incidence without incoherent light: absolute weights
+    W = np.sqrt(dbeta)[None, :] / (np.maximum(P, 0.0) + 0.01 * pmax)
     obliquity = mu_nodes[:, None] * cs[None, :]  # f = a a L(ρ; μ̄) / (μ_i μ_o): fit L to p μ_i μ_o
     valid = np.broadcast_to(cs > COS_MIN, P.shape)
     coef = np.zeros((J, widths.size))
@@ -461,9 +464,9 @@ def table_from_lobes(
         wavelength_um, n_medium, platelet_width_um: set the coherent lobe width λ0/(n D √(2π)).
         coherent_width: explicit β standard deviation of the coherent lobe.
         num_widths: number of Gaussian basis widths.
-        min_width: narrowest basis width used (β units); `platelet_table_arrays` uses 1/(kτ),
-            half the narrowest feature of a Gaussian surface's diffuse lobe, so profile-average
-            speckle is not fitted as structure.
+        min_width: narrowest basis width used (β units); `platelet_table_arrays` uses 2/(kτ),
+            the narrowest term of a Gaussian surface's diffuse lobe, so profile-average speckle
+            is not fitted as structure.
     """
     check_coherent(coherent)
     arrays = _table_arrays_from_lobes(lobes, method=method, num_widths=num_widths, min_width=min_width)
@@ -538,7 +541,7 @@ def platelet_table_arrays(
         theta_s_deg = np.linspace(-89.5, 89.5, 359) if source == "wave" else np.linspace(-89.75, 89.75, 719)
     ts = np.asarray(theta_s_deg, float)
     metal = metal_index_or_aluminium(metal_index, wavelength_um)
-    min_width = float(wavelength_um / (2.0 * np.pi * n_medium * tau_um))  # 1/(kτ)
+    min_width = float(2.0 * wavelength_um / (2.0 * np.pi * n_medium * tau_um))  # 2/(kτ)
     inputs = {
         "table_version": TABLE_VERSION, "source": source, "sigma_um": float(sigma_um), "tau_um": float(tau_um),
         "wavelength_um": float(wavelength_um), "n_medium": float(n_medium), "metal_index": metal,

@@ -11,7 +11,7 @@ import importlib
 import sys
 
 #: Sub-command modules under paintjax._commands, in the order `--help` lists them.
-COMMANDS = ("demo", "microfacet", "array", "brdf", "lobe")
+COMMANDS = ("demo", "microfacet", "array", "brdf", "lobe", "fit", "design")
 
 
 def build_parser() -> argparse.ArgumentParser:

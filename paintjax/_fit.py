@@ -17,6 +17,7 @@ estimated afterwards as δ̂² = max(0, Σ(L*_model − L*_meas)²/max(n − p, 
 from __future__ import annotations
 
 import dataclasses
+import threading
 import time
 from collections.abc import Mapping, Sequence
 
@@ -25,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
-from ._forward import ForwardModel, Restricted
+from ._forward import ForwardModel, Restricted, _jit_evaluate
 from ._parameters import ParameterSpec, make_spec
 
 INSTRUMENT_SD = 0.3
@@ -45,6 +46,7 @@ class FitResult:
         chi2, dof, scale2: χ², n − p and the covariance inflation s².
         success: whether the best start converged; status: Optimistix result message.
         n_starts, n_converged: starts tried and converged; starts: per-start (values, χ², status).
+        at_bound: free parameters whose optimum lies on the edge of their box.
         fixed: values of the fixed forward parameters; discrepancy: δ̂ (if freed) or None.
         seconds: wall time including compilation.
     """
@@ -69,6 +71,7 @@ class FitResult:
     discrepancy: float | None
     seconds: float
     aspecular_deg: np.ndarray = dataclasses.field(default_factory=lambda: np.asarray([]))
+    at_bound: list = dataclasses.field(default_factory=list)
 
     @property
     def x(self) -> np.ndarray:
@@ -90,6 +93,7 @@ class FitResult:
             "n_starts": self.n_starts,
             "n_converged": self.n_converged,
             "discrepancy": self.discrepancy,
+            "at_bound": list(self.at_bound),
             "seconds": self.seconds,
         }
 
@@ -97,7 +101,8 @@ class FitResult:
         lines = [f"least squares: {'converged' if self.success else 'NOT converged'} ({self.status}); "
                  f"{self.n_converged}/{self.n_starts} starts converged; χ² = {self.chi2:.3g} for {self.dof} dof"]
         for n in self.names:
-            lines.append(f"  {n:>12} = {self.values[n]:.4g} ± {self.stderr[n]:.2g}")
+            flag = "   (at bound: stderr from the local Jacobian only)" if n in self.at_bound else ""
+            lines.append(f"  {n:>12} = {self.values[n]:.4g} ± {self.stderr[n]:.2g}{flag}")
         if self.discrepancy is not None:
             lines.append(f"  {'discrepancy':>12} ≈ {self.discrepancy:.3g} L* (moment estimate)")
         return "\n".join(lines)
@@ -117,12 +122,18 @@ def check_measured(measured, m: int, name: str = "measured") -> np.ndarray:
 
 
 def _problem(forward: ForwardModel, free, fixed, bounds):
+    if free is not None:
+        stray = sorted(set(bounds or {}) - set(free))
+        if stray:
+            raise ValueError(f"bounds given for parameters that are not free: {stray}")
+    if hasattr(forward, "spec"):  # emulator: default to its training box
+        bounds = {p.name: (p.lower, p.upper) for p in forward.spec.parameters} | dict(bounds or {})
     free = tuple(free) if free is not None else tuple(n for n in forward.parameter_names if n not in (fixed or {}) and n != "diffuse")
     spec_free = [n for n in free if n != "discrepancy"]
-    spec = make_spec(free, {k: v for k, v in (bounds or {}).items()}) if free else None
+    spec = make_spec(free, {k: v for k, v in (bounds or {}).items() if k in free}) if free else None
     if spec is None:
         raise ValueError("free must name at least one parameter")
-    sub = make_spec(spec_free, {k: v for k, v in (bounds or {}).items() if k != "discrepancy"}) if spec_free else None
+    sub = make_spec(spec_free, {k: v for k, v in (bounds or {}).items() if k in spec_free}) if spec_free else None
     if sub is None:
         raise ValueError("free must include at least one forward-model parameter (not only discrepancy)")
     fixed = {k: v for k, v in dict(fixed or {}).items()}
@@ -148,8 +159,8 @@ def fit_least_squares(
     x0: Mapping[str, float] | None = None,
     seed: int = 0,
     max_steps: int = 200,
-    rtol: float = 1e-7,
-    atol: float = 1e-7,
+    rtol: float = 1e-6,
+    atol: float = 1e-6,
     jacobian: str = "fd",
 ) -> FitResult:
     """Levenberg–Marquardt fit of the free parameters to measured L*, multi-start.
@@ -190,23 +201,39 @@ def fit_least_squares(
 
     from scipy.stats import qmc
 
-    z = qmc.Sobol(len(sub), scramble=True, seed=seed).random(int(n_starts))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # Sobol balance needs powers of 2; we only need spread
+        z = qmc.Sobol(len(sub), scramble=True, seed=seed).random(int(n_starts))
     z = np.clip(0.05 + 0.9 * z, 1e-6, 1 - 1e-6)  # keep starts off the very edges of the box
     u0 = np.log(z) - np.log1p(-z)
     if x0 is not None:
         xs = sub.check(sub.from_dict(x0), "x0")
         eps = 1e-9 * (sub.upper - sub.lower)
         u0 = np.concatenate([np.asarray(sub.to_unconstrained(np.clip(xs, sub.lower + eps, sub.upper - eps)))[None], u0])
-    solve, residual, jac = _compiled(restricted, sub, max_steps, rtol, atol, jacobian)
-    u_all, codes = solve(jnp.asarray(u0), args)
-    u_all, codes = np.asarray(u_all), np.asarray(codes).reshape(-1)
-    r_all = np.asarray(jax.vmap(residual, in_axes=(0, None))(jnp.asarray(u_all), args))
+    solve, residual, jac = _compiled(len(sub), m, max_steps, rtol, atol)
+    fwd, jac_np = _host_functions(restricted, sub, jacobian)
+    with _ACTIVE_LOCK:
+        _ACTIVE["f"], _ACTIVE["j"] = fwd, jac_np
+        u_all, codes = solve(jnp.asarray(u0), args)
+        u_all, codes = np.asarray(u_all), np.asarray(codes).reshape(-1)
+        r_all = np.asarray(jax.vmap(residual, in_axes=(0, None))(jnp.asarray(u_all), args))
+        if jacobian == "ad":
+            Ju_ad = [np.asarray(jac(jnp.asarray(u), args)) for u in u_all]
     chi2_all = np.sum(r_all**2, axis=1)
-    ok = (codes == 0) & np.isfinite(chi2_all)
-    starts = [
-        {"x": sub.as_dict(np.asarray(sub.from_unconstrained(u))), "chi2": float(c), "status": _message(int(k))}
-        for u, c, k in zip(u_all, chi2_all, codes)
-    ]
+    # A start that ran out of steps while walking a parameter to the edge of its box (u → ±∞, where
+    # the logit map flattens) has converged to a boundary optimum: accept it and say so.
+    z_all = 1.0 / (1.0 + np.exp(-u_all))
+    edge = (z_all < 1e-4) | (z_all > 1 - 1e-4)
+    stalled = np.isin(codes, (1, 7)) & edge.any(axis=1)
+    ok = ((codes == 0) | stalled) & np.isfinite(chi2_all)
+    starts = []
+    for u, c, k, e, st in zip(u_all, chi2_all, codes, edge, stalled):
+        msg = _message(int(k))
+        if st:
+            msg = "converged to the bound of " + ", ".join(n for n, flag in zip(sub.names, e) if flag)
+        starts.append({"x": sub.as_dict(np.asarray(sub.from_unconstrained(u))), "chi2": float(c), "status": msg})
     pool = np.where(ok)[0] if ok.any() else np.where(np.isfinite(chi2_all))[0]
     if pool.size == 0:
         raise ValueError("every least-squares start failed (non-finite residuals); check the measured values and bounds")
@@ -214,7 +241,13 @@ def fit_least_squares(
     u_best = u_all[best]
     x_best = np.asarray(sub.from_unconstrained(u_best))
     # Jacobian in physical units: ∂r/∂x = ∂r/∂u · (∂x/∂u)^-1 (the bijection is elementwise).
-    Ju = np.asarray(jac(jnp.asarray(u_best), args))
+    if jacobian == "ad":
+        Ju = Ju_ad[best]
+    else:  # central differences (step 1e-5 in u)
+        hs = 1e-5
+        E = np.eye(len(sub)) * hs
+        Y = fwd(np.concatenate([u_best[None] + E, u_best[None] - E]))
+        Ju = ((Y[: len(sub)] - Y[len(sub):]) / (2 * hs)).T * (w / s)[:, None]
     dxdu = np.diag(np.asarray(jax.jacfwd(sub.from_unconstrained)(jnp.asarray(u_best))))
     Jx = Ju / dxdu[None, :]
     n_eff = int(np.sum(w > 0))
@@ -222,10 +255,11 @@ def fit_least_squares(
     chi2 = float(chi2_all[best])
     scale2 = max(1.0, chi2 / dof) if dof > 0 else 1.0
     cov = scale2 * np.linalg.pinv(Jx.T @ Jx)
-    L_fit = np.asarray(restricted.evaluate(jnp.asarray(x_best)[None])[0])
+    L_fit = fwd(u_best[None])[0]
     res = L_fit - y
     values = sub.as_dict(x_best)
     stderr = {n: float(np.sqrt(max(cov[i, i], 0.0))) for i, n in enumerate(sub.names)}
+    at_bound = [n for n, flag in zip(sub.names, edge[best]) if flag]
     disc = None
     if "discrepancy" in spec.names:
         disc = float(np.sqrt(max(0.0, np.sum((w * res) ** 2) / max(dof, 1) - float(instrument_sd) ** 2)))
@@ -252,14 +286,20 @@ def fit_least_squares(
         discrepancy=disc,
         seconds=time.perf_counter() - t0,
         aspecular_deg=np.asarray(forward.aspecular_deg),
+        at_bound=at_bound,
     )
+
+
+_SHORT = {1: "max_steps reached", 7: "max_steps reached", 8: "diverged", 9: "non-finite values"}
 
 
 def _message(code: int) -> str:
     if code == 0:
         return "successful"
+    if code in _SHORT:
+        return _SHORT[code]
     try:
-        return str(optx.RESULTS[code]).strip() or f"failed (code {code})"
+        return str(optx.RESULTS._index_to_message[code]).split("\n")[0] or f"failed (code {code})"
     except Exception:  # pragma: no cover - message lookup is cosmetic
         return f"failed (code {code})"
 
@@ -267,42 +307,55 @@ def _message(code: int) -> str:
 _COMPILED: dict = {}
 
 
-def _callback_map(restricted: Restricted, sub: ParameterSpec, jacobian: str):
-    """u ↦ L* as a `custom_jvp` whose value and Jacobian are computed outside the solver's trace
-    through `jax.pure_callback`.
+_ACTIVE: dict = {}
+_ACTIVE_LOCK = threading.RLock()
 
-    Optimistix then traces only this small wrapper. Values come from `batched_forward` (one
-    compiled, fixed-chunk batched forward per model, shared with the posterior and the design);
-    the Jacobian either by forward-mode AD (``"ad"``, compiled separately) or by central
-    differences in u with step 1e-5 (``"fd"``: no extra compilation; also works for forwards
-    that JAX cannot differentiate, e.g. a tracer with common random numbers).
+
+def _host_functions(restricted: Restricted, sub: ParameterSpec, jacobian: str):
+    """NumPy (value, Jacobian) functions of u for one problem.
+
+    Values come from `batched_forward`; the Jacobian either by forward-mode AD (``"ad"``,
+    compiled separately) or by one-sided differences in u with step 1e-6 (``"fd"``: no extra
+    compilation; also works for forwards JAX cannot differentiate, e.g. a tracer with common
+    random numbers).
     """
-    k, m = len(sub), len(restricted.model.aspecular_deg)
+    k = len(sub)
+    m = len(restricted.model.aspecular_deg)
     fwd = batched_forward(restricted, sub)
-    dtype = jnp.result_type(float)
     if jacobian == "ad":
         j_batch = jax.jit(jax.vmap(jax.jacfwd(lambda u: restricted.evaluate(sub.from_unconstrained(u)[None])[0])))
 
         def jac_np(U):
             return np.asarray(j_batch(U))
     elif jacobian == "fd":
-        h = 1e-5
+        h = 1e-6
 
         def jac_np(U):
             E = np.eye(k) * h
-            P = np.concatenate([U[:, None, :] + E[None], U[:, None, :] - E[None]], axis=1).reshape(-1, k)
-            Y = fwd(P).reshape(U.shape[0], 2, k, m)
-            return np.transpose((Y[:, 0] - Y[:, 1]) / (2 * h), (0, 2, 1))
+            P = np.concatenate([U[:, None, :], U[:, None, :] + E[None]], axis=1).reshape(-1, k)
+            Y = fwd(P).reshape(U.shape[0], k + 1, m)
+            return np.transpose((Y[:, 1:] - Y[:, :1]) / h, (0, 2, 1))
     else:
         raise ValueError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
+    return fwd, jac_np
+
+
+def _callback_map(k: int, m: int):
+    """u ↦ L* as a `custom_jvp` whose value and Jacobian come from the *active* problem's host
+    functions through `jax.pure_callback`.
+
+    Optimistix then traces only this small wrapper, and one compiled solver per (k, m, settings)
+    serves every problem in the process (the problem is looked up at call time, under a lock).
+    """
+    dtype = jnp.result_type(float)
 
     def host_f(u):
         u = np.asarray(u)
-        return fwd(u.reshape(-1, k)).astype(dtype).reshape(u.shape[:-1] + (m,))
+        return _ACTIVE["f"](u.reshape(-1, k)).astype(dtype).reshape(u.shape[:-1] + (m,))
 
     def host_j(u):
         u = np.asarray(u)
-        return jac_np(u.reshape(-1, k)).astype(dtype).reshape(u.shape[:-1] + (m, k))
+        return _ACTIVE["j"](u.reshape(-1, k)).astype(dtype).reshape(u.shape[:-1] + (m, k))
 
     @jax.custom_jvp
     def F(u):
@@ -323,37 +376,46 @@ _FORWARDS: dict = {}
 
 
 def batched_forward(restricted: Restricted, sub: ParameterSpec, chunk: int = CHUNK):
-    """NumPy function U (n, k) unconstrained → L* (n, m), compiled once per problem for a fixed
-    chunk size and padded, so every batch size reuses the same executable."""
-    key = (id(restricted.model), restricted.fingerprint(), sub.fingerprint(), chunk)
+    """NumPy function U (n, k) unconstrained → L* (n, m).
+
+    The free-to-full mapping runs in NumPy; the model sees full θ in fixed-size chunks (padded),
+    so one compiled executable per model class and chunk size serves every problem — any choice
+    of free and fixed parameters, least squares, posterior and design alike.
+    """
+    key = (restricted.fingerprint(), sub.fingerprint(), chunk)
     if key in _FORWARDS:
         return _FORWARDS[key][1]
-    if restricted.jittable:
-        f = jax.jit(lambda U: restricted.evaluate(sub.from_unconstrained(U)))
-    else:
-        def f(U):
-            return restricted.model.evaluate(restricted.full(np.asarray(sub.from_unconstrained(U))))
+    model = restricted.model
+    cols = np.array(restricted._cols)
+    vals = np.asarray(restricted._vals, dtype=float)
 
     def fwd(U):
         U = np.asarray(U, dtype=float)
         n = U.shape[0]
+        X = sub.from_unconstrained_np(U)
+        T = np.where(cols >= 0, X[:, np.maximum(cols, 0)], vals[None, :])
         pad = (-n) % chunk
-        Up = np.concatenate([U, np.repeat(U[-1:], pad, axis=0)]) if pad else U
-        out = [np.asarray(f(Up[i:i + chunk])) for i in range(0, Up.shape[0], chunk)]
+        if pad:
+            T = np.concatenate([T, np.repeat(T[-1:], pad, axis=0)])
+        if model.jittable:
+            out = [np.asarray(_jit_evaluate(model, jnp.asarray(T[i:i + chunk]))) for i in range(0, T.shape[0], chunk)]
+        else:
+            out = [np.asarray(model.evaluate(T[i:i + chunk])) for i in range(0, T.shape[0], chunk)]
         return np.concatenate(out)[:n]
 
-    if len(_FORWARDS) > 16:
+    if len(_FORWARDS) > 32:
         _FORWARDS.clear()
-    _FORWARDS[key] = (restricted.model, fwd)
+    _FORWARDS[key] = (model, fwd)
     return fwd
 
 
-def _compiled(restricted: Restricted, sub: ParameterSpec, max_steps: int, rtol: float, atol: float, jacobian: str = "fd"):
-    """(vmapped LM solve, residual, Jacobian) for a problem, compiled once and cached by content."""
-    key = (id(restricted.model), restricted.fingerprint(), sub.fingerprint(), int(max_steps), float(rtol), float(atol), jacobian)
+def _compiled(k: int, m: int, max_steps: int, rtol: float, atol: float):
+    """(vmapped LM solve, residual, Jacobian of the residual) for k parameters and m angles,
+    compiled once per process and setting; they evaluate the active problem (see `_callback_map`)."""
+    key = (int(k), int(m), int(max_steps), float(rtol), float(atol))
     if key in _COMPILED:
-        return _COMPILED[key][1:]
-    F = _callback_map(restricted, sub, jacobian)
+        return _COMPILED[key]
+    F = _callback_map(k, m)
 
     def residual(u, args):
         ys, ws, ss = args
@@ -365,9 +427,5 @@ def _compiled(restricted: Restricted, sub: ParameterSpec, max_steps: int, rtol: 
         sol = optx.least_squares(residual, solver, u, args, max_steps=max_steps, throw=False)
         return sol.value, sol.result._value
 
-    solve = jax.jit(jax.vmap(one, in_axes=(0, None)))
-    jac = jax.jit(jax.jacfwd(residual))
-    if len(_COMPILED) > 16:
-        _COMPILED.clear()
-    _COMPILED[key] = (restricted.model, solve, jax.jit(residual), jac)
-    return _COMPILED[key][1:]
+    _COMPILED[key] = (jax.jit(jax.vmap(one, in_axes=(0, None))), jax.jit(residual), jax.jit(jax.jacfwd(residual)))
+    return _COMPILED[key]

@@ -707,7 +707,7 @@ def build_emulator(
     arrays = dict(X=Z, alpha=np.asarray(alpha), hyper=np.asarray(hyper), y_mean=y_mean, y_std=y_std, Zt=Zt, Yt=Yt, Y=Y,
                   design_seconds=t_design, train_seconds=time.perf_counter() - t0 - t_design)
     em = _emulator_from_arrays(arrays | dict(held_out_rms=np.zeros(Y.shape[1]), held_out_max=0.0), spec, angles, source, key)
-    err = np.asarray(em.evaluate(jnp.asarray(spec.from_unit(Zt)))) - Yt
+    err = np.asarray(em(np.asarray(spec.from_unit(Zt)))) - Yt
     arrays["held_out_rms"] = np.sqrt(np.mean(err**2, axis=0))
     arrays["held_out_max"] = float(np.max(np.abs(err)))
     if path is not None:
@@ -742,3 +742,60 @@ def emulator_check(emulator: Emulator, direct: Callable, x: Float[ArrayLike, "n 
     x = np.asarray(x, dtype=float)
     d = np.asarray(emulator(x)) - np.asarray(direct(x))
     return {"rms": np.sqrt(np.mean(d**2, 0)), "max_abs": np.max(np.abs(d), 0), "held_out_rms": emulator.error_sd, "n": x.shape[0]}
+
+
+# ------------------------------------------------------------------------------------------
+# Registry of named forward models (the CLI's --forward)
+# ------------------------------------------------------------------------------------------
+def _analytic(free, fixed, bounds, **kw):
+    return AnalyticForward()
+
+
+def _analytic_kirchhoff(free, fixed, bounds, **kw):
+    return AnalyticForward(lobe="kirchhoff")
+
+
+def _analytic_mirror(free, fixed, bounds, **kw):
+    return AnalyticForward(rough=False)
+
+
+def _analytic_emulator(free, fixed, bounds, *, cache_dir=".paintjax_cache/emulators", n_train: int = 256, n_test: int = 64, seed: int = 0, progress: bool = False, **kw):
+    from ._parameters import make_spec
+
+    base = AnalyticForward()
+    names = tuple(n for n in free if n != "discrepancy")
+    spec = make_spec(names, {k: v for k, v in (bounds or {}).items() if k in names})
+    restricted = base.restrict(names, {k: v for k, v in (fixed or {}).items() if k != "discrepancy"})
+    return build_emulator(restricted, spec, n_train=n_train, n_test=n_test, seed=seed, cache_dir=cache_dir, progress=progress)
+
+
+#: name → (factory(free, fixed, bounds, **options) → ForwardModel, one-line description).
+#: The tracer registers e.g. "tracer-emulator" with `register_forward`.
+FORWARDS: dict[str, tuple[Callable, str]] = {
+    "analytic": (_analytic, "analytic single scatter, rough platelets (Beckmann limit of the Kirchhoff BRDF)"),
+    "analytic-kirchhoff": (_analytic_kirchhoff, "analytic single scatter, full Kirchhoff series lobe (slower)"),
+    "analytic-mirror": (_analytic_mirror, "analytic single scatter, mirror platelets (σ, τ not used)"),
+    "analytic-emulator": (_analytic_emulator, "Gaussian-process emulator of 'analytic' (tests the emulator path the tracer will use)"),
+}
+
+
+def register_forward(name: str, factory: Callable, description: str) -> None:
+    """Make a forward model available by name (CLI ``--forward``, `make_forward`).
+
+    Arguments:
+        name: the name.
+        factory: ``factory(free, fixed, bounds, **options) -> ForwardModel``; for the tracer,
+            typically `build_emulator` over a `CallableForward` with a fixed key.
+        description: one line for ``--help``.
+    """
+    if not name or not callable(factory):
+        raise ValueError("register_forward needs a non-empty name and a callable factory")
+    FORWARDS[name] = (factory, description)
+
+
+def make_forward(name: str, free: Sequence[str] = (), fixed: Mapping[str, float] | None = None,
+                 bounds: Mapping[str, tuple[float, float]] | None = None, **options) -> ForwardModel:
+    """Build the registered forward model `name` for the given free/fixed parameters."""
+    if name not in FORWARDS:
+        raise ValueError(f"unknown forward model {name!r}; known: {', '.join(FORWARDS)}")
+    return FORWARDS[name][0](tuple(free), dict(fixed or {}), dict(bounds or {}), **options)

@@ -171,6 +171,12 @@ class ParameterSpec:
         """u ∈ ℝ^p → x inside the bounds (smooth bijection)."""
         return self.from_unit(jax.nn.sigmoid(jnp.asarray(u)))
 
+    def from_unconstrained_np(self, u) -> np.ndarray:
+        """NumPy version of `from_unconstrained` (no JAX dispatch; for host-side hot loops)."""
+        z = 1.0 / (1.0 + np.exp(-np.asarray(u, dtype=float)))
+        t = self._a + (self._b - self._a) * z
+        return np.where(self._is_log, np.exp(np.where(self._is_log, t, 0.0)), t)
+
     def log_det_jacobian(self, u: Float[ArrayLike, "... p"]) -> Float[Array, "..."]:
         """log |dx/du| summed over parameters (add to a log density in x to get one in u)."""
         u = jnp.asarray(u)

@@ -128,8 +128,9 @@ class LogPosterior:
         forward, measured, free, fixed, bounds, instrument_sd: as in `sample_posterior`.
     """
 
-    def __init__(self, forward: ForwardModel, measured, free, fixed=None, bounds=None, instrument_sd: float = INSTRUMENT_SD):
+    def __init__(self, forward: ForwardModel, measured, free, fixed=None, bounds=None, instrument_sd: float = INSTRUMENT_SD, chunk: int = 16):
         self.forward = forward
+        self.chunk = int(chunk)
         self.measured = check_measured(measured, len(forward.aspecular_deg))
         if not (float(instrument_sd) > 0):
             raise ValueError(f"instrument_sd must be > 0, got {instrument_sd!r}")
@@ -169,7 +170,7 @@ class LogPosterior:
             lp = ll + spec.log_prior_unconstrained(U)
             return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
-        fwd = batched_forward(self.restricted, sub)
+        fwd = batched_forward(self.restricted, sub, self.chunk)
         self._fns = (cols, fwd, rest)
 
     def model_lightness(self, U) -> np.ndarray:
@@ -268,9 +269,9 @@ def sample_posterior(
         free = tuple(n for n in forward.parameter_names if n not in (fixed or {}) and n != "diffuse")
         if "discrepancy" not in (fixed or {}):
             free = free + ("discrepancy",)
-    lp = LogPosterior(forward, measured, free, fixed, bounds, instrument_sd)
-    p = len(lp.names)
     walkers = int(walkers)
+    lp = LogPosterior(forward, measured, free, fixed, bounds, instrument_sd, chunk=max(1, walkers // 2))
+    p = len(lp.names)
     if walkers < 2 * p or walkers % 2:
         raise ValueError(f"walkers must be even and >= 2 × {p} parameters = {2 * p}, got {walkers}")
     if n_tau < 1 or min_steps < 1 or max_steps < min_steps or check_every < 1:

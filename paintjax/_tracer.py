@@ -65,7 +65,7 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Float, Int
 
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF
-from ._instrument import Geometry
+from ._instrument import MAX_POLAR_DEG, Geometry
 from ._lightness import reflectance_factor_to_lightness
 from ._microfacet import _orthonormal_basis, check_coat_index
 from ._optics import fresnel_dielectric
@@ -92,6 +92,9 @@ class TracerOptions(eqx.Module):
             with probability value/threshold and raised to it (unbiased; 0 disables).
         shadow_buffer: shadow rays traced per pass, as a fraction of lanes × detectors; active
             shadow rays are compacted into this buffer (more passes run when it overflows).
+        edges: "scatter" (default): a ray entering a platelet through a side face is scattered by
+            the platelet BRDF about that face's normal (aluminium side walls); "absorb": side
+            faces absorb (dark, broken edges; also the thin-platelet limit of the analytic model).
         float64: trace in float64 when x64 is enabled (default float32 geometry, which is ample
             for µm-scale boxes in a sub-mm tile and twice as fast; tallies are float64 under x64).
     """
@@ -101,12 +104,13 @@ class TracerOptions(eqx.Module):
     cells_per_step: int = eqx.field(static=True, default=3)
     batches: int = eqx.field(static=True, default=32)
     roulette_weight: float = eqx.field(static=True, default=0.05)
-    max_steps: int = eqx.field(static=True, default=300)
+    max_steps: int = eqx.field(static=True, default=1000)
     randomize_azimuth: bool = eqx.field(static=True, default=True)
     chunk_rays: int = eqx.field(static=True, default=65536)
     float64: bool = eqx.field(static=True, default=False)
     shadow_roulette: float = eqx.field(static=True, default=0.02)
     shadow_buffer: float = eqx.field(static=True, default=0.25)
+    edges: str = eqx.field(static=True, default="scatter")
 
     def __check_init__(self):
         for name, v, lo in (("lanes", self.lanes, 1), ("steps_per_call", self.steps_per_call, 1),
@@ -120,6 +124,8 @@ class TracerOptions(eqx.Module):
             raise ValueError(f"shadow_roulette must lie in [0, 10), got {self.shadow_roulette!r}")
         if not (0.0 < self.shadow_buffer <= 1.0):
             raise ValueError(f"shadow_buffer must lie in (0, 1], got {self.shadow_buffer!r}")
+        if self.edges not in ("scatter", "absorb"):
+            raise ValueError(f"edges must be 'scatter' or 'absorb', got {self.edges!r}")
         if not (0.0 <= self.roulette_weight < 1.0):
             raise ValueError(f"roulette_weight must lie in [0, 1), got {self.roulette_weight!r}")
 
@@ -199,12 +205,15 @@ def _pack_platelets(array, dtype, n_pad: int) -> tuple:
     return tuple(jnp.asarray(packed[:, k], dtype) for k in range(packed.shape[1]))
 
 
-def _shadow_cell_bound(shape, cell, h_b, det_in) -> int:
-    """Cells a ray toward any detector crosses at most from inside the basecoat to its top."""
-    nx, ny, nz = shape
-    cz = np.maximum(np.abs(det_in[:, 2]), 1e-3)
-    lateral = h_b * np.sqrt(1.0 - cz**2) / cz
-    return int(nz + int(np.ceil(np.max(lateral) / cell[0])) + int(np.ceil(np.max(lateral) / cell[1])) + 1)
+def _shadow_cell_bound(shape, cell, h_b, n) -> int:
+    """Cells a ray toward any detector (polar ≤ 85° in air) crosses at most from inside the basecoat to its top.
+
+    Fixed by the largest accepted detector angle, not by the geometry, so geometries share a compilation.
+    """
+    nz = shape[2]
+    sin_in = np.sin(np.deg2rad(MAX_POLAR_DEG)) / n
+    lateral = h_b * sin_in / np.sqrt(1.0 - sin_in**2)
+    return int(nz + int(np.ceil(lateral / cell[0])) + int(np.ceil(lateral / cell[1])) + 1)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -348,7 +357,7 @@ def _face_normal(sc: _Scene, j, shift, x_hit, d):
     is_v = ~is_u & (tns[1] >= tns[2])
     axis = jnp.where(is_u, u, jnp.where(is_v, v, n))
     da = jnp.where(is_u, das[0], jnp.where(is_v, das[1], das[2]))
-    return -jnp.sign(da) * axis
+    return -jnp.sign(da) * axis, is_u | is_v
 
 
 # ----------------------------------------------------------------------------------------------
@@ -424,7 +433,7 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
 
     # --- scattering event: platelet face (BRDF) or primer (Lambert)
     x_hit = pos + tb * d
-    nf = _face_normal(sc, jb, sb, x_hit, d)
+    nf, side = _face_normal(sc, jb, sb, x_hit, d)
     x_bot = jnp.concatenate([pos[:2] + t_slab * d[:2], jnp.zeros(1, dtype)])
     ez = jnp.array([0.0, 0.0, 1.0], dtype)
     n_ev = jnp.where(hit, nf, ez)
@@ -441,6 +450,8 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     wo = jnp.where(hit, wo_pl, wo_pr)
     wo = wo / jnp.maximum(jnp.linalg.norm(wo), 1e-30)
     factor = jnp.where(hit, s_w, sc.albedo)
+    if opt.edges == "absorb":
+        factor = jnp.where(hit & side, 0.0, factor)
 
     # --- next-event estimation: this event's shadow rays are traced in the next step
     new_sh_val = jnp.zeros(m, dtype)
@@ -460,6 +471,8 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
         cos_o = jnp.maximum(wo_loc_j[:, 2], 0.0)
         val = jnp.pi * w * f * cos_o * To / (sc.n**2 * w_in[:, 2])
         score = event & (first | ~single)
+        if opt.edges == "absorb":
+            score = score & ~(hit & side)
         val = jnp.where(score & jnp.isfinite(val) & (val > 0), val, 0.0)
         if opt.shadow_roulette > 0:  # unbiased roulette on small contributions saves shadow rays
             small = val < opt.shadow_roulette
@@ -681,7 +694,6 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
     n_pad = _bucket(n_pl + 1, 512)
     table = np.full((_bucket(ncell, 1024), _bucket(cells.shape[1], 4)), n_pad - 1, dtype=np.int32)
     table[:ncell, : cells.shape[1]] = np.where(cells < 0, n_pad - 1, cells)
-    det_in = np.asarray(geometry.detectors_in_coat(n), dtype=float)
     eps = max(1e-9, 64.0 * float(jnp.finfo(dtype).eps)) * max(Lx, Ly, h_b)
     arr = lambda x: jnp.asarray(np.asarray(x, dtype=float), dtype)  # noqa: E731
     return _Scene(
@@ -702,7 +714,7 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
         det_cos_alpha=arr(np.cos(np.deg2rad(geometry.detector_aperture_deg))),
         brdf=brdf,
         max_cells=int(min_cells),
-        shadow_cells=_shadow_cell_bound(shape, cell, h_b, det_in),
+        shadow_cells=_shadow_cell_bound(shape, cell, h_b, float(n)),
     )
 
 
@@ -808,12 +820,19 @@ def trace(
     run = _runner(mesh, opt)
     single = jnp.asarray(bool(single_scatter))
     key = jnp.asarray(np.uint32(_seed_state(seed)))
-    state = _initial_state(lanes_total, ndev, m, cdt, dtype, idt)
+    from jax.sharding import NamedSharding
+
+    lanes_sharding = NamedSharding(mesh, PartitionSpec("rays"))
+    replicated = NamedSharding(mesh, PartitionSpec())
+    state = jax.device_put(_initial_state(lanes_total, ndev, m, cdt, dtype, idt), lanes_sharding)
+    sc = jax.device_put(sc, replicated)
+    key = jax.device_put(key, replicated)
+    single = jax.device_put(single, replicated)
     n_local = -(-int(rays) // ndev)
     limit_local = -(-int(max_rays if max_rays is not None else 64 * int(rays)) // ndev)
     t0 = time.perf_counter()
     while True:
-        nl = jnp.asarray(n_local, idt)
+        nl = jax.device_put(jnp.asarray(n_local, idt), replicated)
         while True:
             state = run(sc, key, state, nl, single)
             busy = bool(jnp.any(state[0][3]) | jnp.any(state[0][-1] != 0))

@@ -84,12 +84,15 @@ def reference_grid(array, shape, capacity=None) -> HandGrid:
 class LambertPlateletBRDF(AbstractPlateletBRDF):
     """Test platelet BRDF: Lambertian with albedo a (reciprocal, exactly importance sampled)."""
 
-    a: float = eqx.field(static=True)
+    def __init__(self, a):
+        self.a = jnp.asarray(a)
+
+    a: jnp.ndarray
     is_delta: ClassVar[bool] = False
 
     def evaluate(self, wi, wo):
         ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        return jnp.where(ok, self.a / jnp.pi, 0.0)
+        return jnp.where(ok, self.a / jnp.pi, 0.0).astype(wi.dtype)
 
     def sample(self, key, wi):
         import jax
@@ -98,7 +101,7 @@ class LambertPlateletBRDF(AbstractPlateletBRDF):
         r = jnp.sqrt(u[..., 0])
         ph = 2 * jnp.pi * u[..., 1]
         wo = jnp.stack([r * jnp.cos(ph), r * jnp.sin(ph), jnp.sqrt(1 - u[..., 0])], -1)
-        return wo, jnp.full(wi.shape[:-1], self.a)
+        return wo, jnp.broadcast_to(self.a, wi.shape[:-1]).astype(wi.dtype)
 
     def albedo(self, cos_i):
-        return jnp.full(jnp.shape(cos_i), self.a)
+        return jnp.broadcast_to(self.a, jnp.shape(cos_i))

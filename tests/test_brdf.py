@@ -119,8 +119,10 @@ def test_he_torrance_limits():
     assert float(ht.incoherent(z, z)) == pytest.approx(float(bk.incoherent(z, z)), rel=1e-9)
 
 
-@pytest.mark.parametrize("name", ["beckmann", "beckmann_delta", "he_torrance", "he_torrance_rough_air", "table", "table_delta"])
-@pytest.mark.parametrize("theta_i", [10.0, 60.0])
+@pytest.mark.parametrize(
+    "name, theta_i",
+    [("beckmann", 10.0), ("beckmann_delta", 60.0), ("he_torrance", 60.0), ("he_torrance_rough_air", 10.0), ("table", 10.0), ("table", 60.0), ("table_delta", 40.0)],
+)
 def test_sampling_unbiased(name, theta_i):
     """Monte Carlo ∫ f cos / pdf equals the quadrature albedo; no sample below the plane."""
     brdf = brdfs()[name]

@@ -1,0 +1,151 @@
+"""Least squares (Optimistix LM, multi-start), forward models and the emulator."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from paintjax._fit import fit_least_squares
+from paintjax._forward import AnalyticForward, CallableForward, build_emulator, emulator_check, make_forward
+from paintjax._parameters import make_spec
+
+MIRROR = AnalyticForward(rough=False)
+TRUTH = {"shape": 2.6, "scale": 1.9, "diffuse": 0.15}
+
+
+def _truth_curve(model=MIRROR, truth=TRUTH):
+    return np.asarray(model(np.array([truth[n] for n in model.parameter_names])))
+
+
+def test_forward_shapes_and_validation():
+    y = MIRROR(np.array([[2.0, 2.0, 0.1], [3.0, 1.5, 0.0]]))
+    assert y.shape == (2, 5) and np.all(np.isfinite(y))
+    assert MIRROR(np.array([2.0, 2.0, 0.1])).shape == (5,)
+    with pytest.raises(ValueError, match="theta must have shape"):
+        MIRROR(np.ones((2, 4)))
+    with pytest.raises(ValueError, match="lobe must be"):
+        AnalyticForward(lobe="phong")
+    with pytest.raises(ValueError, match="refractive index n"):
+        AnalyticForward(n=0.5)
+    with pytest.raises(ValueError, match="unknown forward model"):
+        make_forward("raytracer")
+    with pytest.raises(ValueError, match="not inputs of this forward model"):
+        MIRROR.restrict(("sigma",))
+    with pytest.raises(ValueError, match=r"fixed value of diffuse must lie in \[0, 0.5\]"):
+        MIRROR.restrict(("shape",), {"diffuse": 2.0})
+
+
+def test_noise_free_recovery_from_several_starts():
+    y = _truth_curve()
+    fr = fit_least_squares(MIRROR, y, free=("shape", "scale", "diffuse"), n_starts=6, seed=1)
+    assert fr.success and fr.n_starts == 6
+    for n, v in TRUTH.items():
+        assert fr.values[n] == pytest.approx(v, rel=1e-4)
+    # at least 3 independent starts reach the truth on their own
+    hits = [s for s in fr.starts if all(abs(s["x"][n] / v - 1) < 1e-3 for n, v in TRUTH.items())]
+    assert len(hits) >= 3
+    assert fr.chi2 < 1e-8 and np.max(np.abs(fr.residuals)) < 1e-4
+
+
+def test_noisy_recovery_and_covariance():
+    rng = np.random.default_rng(7)
+    y = _truth_curve() + rng.normal(0, 0.3, 5)
+    fr = fit_least_squares(MIRROR, y, free=("shape", "scale", "diffuse"), n_starts=4, seed=2)
+    assert fr.success
+    for n, v in TRUTH.items():
+        assert abs(fr.values[n] - v) < 4 * fr.stderr[n] + 1e-9
+        assert fr.stderr[n] > 0
+    assert fr.covariance.shape == (3, 3) and np.allclose(fr.covariance, fr.covariance.T)
+    assert fr.scale2 >= 1.0 and fr.dof == 2
+    d = fr.to_dict()
+    assert set(d["params"]) == {"shape", "scale", "diffuse"} and len(d["L_star_fit"]) == 5
+
+
+def test_rough_platelets_sigma_tau_recovered():
+    rough = AnalyticForward(rough=True)
+    truth = {"shape": 2.3, "scale": 2.2, "sigma": 0.05, "tau": 0.7, "diffuse": 0.0}
+    y = np.asarray(rough(np.array([truth[n] for n in rough.parameter_names])))
+    fr = fit_least_squares(rough, y, free=("sigma", "tau"), fixed={"shape": 2.3, "scale": 2.2}, n_starts=3, seed=0)
+    assert fr.success
+    assert fr.values["sigma"] == pytest.approx(0.05, rel=1e-3)
+    assert fr.values["tau"] == pytest.approx(0.7, rel=1e-3)
+    assert fr.fixed["shape"] == 2.3 and fr.fixed["diffuse"] == 0.0
+
+
+def test_multistart_survives_failing_starts():
+    # A forward that is NaN for part of the box: those starts fail, the fit still succeeds.
+    def fn(theta):
+        L = MIRROR.evaluate(theta)
+        return jnp.where(theta[:, :1] > 6.0, jnp.nan, L)
+
+    broken = CallableForward(fn, MIRROR.parameter_names, identity="test-broken-mirror-v1", jittable=True)
+    y = _truth_curve()
+    fr = fit_least_squares(broken, y, free=("shape", "scale", "diffuse"), n_starts=8, seed=3)
+    assert fr.success
+    assert fr.values["shape"] == pytest.approx(TRUTH["shape"], rel=1e-3)
+    assert any(not np.isfinite(s["chi2"]) or s["status"] != "successful" for s in fr.starts)
+
+
+def test_discrepancy_moment_estimate():
+    y = _truth_curve() + np.array([3.0, -3.0, 3.0, -3.0, 3.0])
+    fr = fit_least_squares(MIRROR, y, free=("shape", "scale", "discrepancy"), fixed={"diffuse": 0.15}, n_starts=3)
+    assert fr.discrepancy is not None and fr.discrepancy > 1.0
+    assert np.isnan(fr.stderr["discrepancy"])
+
+
+def test_fit_bad_inputs():
+    with pytest.raises(ValueError, match="measured must have 5 values"):
+        fit_least_squares(MIRROR, [1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="finite"):
+        fit_least_squares(MIRROR, [1.0, 2.0, np.nan, 4.0, 5.0])
+    with pytest.raises(ValueError, match="weights must be 5 finite non-negative"):
+        fit_least_squares(MIRROR, _truth_curve(), weights=[1, 1, -1, 1, 1])
+    with pytest.raises(ValueError, match="n_starts must be >= 1"):
+        fit_least_squares(MIRROR, _truth_curve(), n_starts=0)
+    with pytest.raises(ValueError, match="instrument_sd must be > 0"):
+        fit_least_squares(MIRROR, _truth_curve(), instrument_sd=0.0)
+    with pytest.raises(ValueError, match="both free and fixed"):
+        fit_least_squares(MIRROR, _truth_curve(), free=("shape",), fixed={"shape": 2.0})
+    with pytest.raises(ValueError, match="x0 of shape must lie"):
+        fit_least_squares(MIRROR, _truth_curve(), free=("shape", "scale"), x0={"shape": 100.0, "scale": 1.0})
+
+
+def test_emulator_cached_with_measured_error(tmp_path):
+    spec = make_spec(("shape", "scale"), {"shape": (1.5, 4.0), "scale": (1.2, 3.5)})
+    target = MIRROR.restrict(spec.names, {"diffuse": 0.15})
+    em = build_emulator(target, spec, n_train=48, n_test=24, seed=0, cache_dir=tmp_path, batch=16)
+    assert em.parameter_names == ("shape", "scale")
+    err = em.error_sd
+    assert err.shape == (5,) and np.all(err >= 0) and np.max(err) < 1.0
+    files = list(tmp_path.glob("emulator-*.npz"))
+    assert len(files) == 1 and not list(tmp_path.glob("*.partial.npz"))
+    again = build_emulator(target, spec, n_train=48, n_test=24, seed=0, cache_dir=tmp_path)
+    assert again.key == em.key and np.allclose(again.error_sd, err)
+    x = np.array([[2.3, 2.2], [3.1, 1.6]])
+    chk = emulator_check(em, target, x)
+    assert np.all(chk["max_abs"] < 2.0)
+    # The emulator is a ForwardModel: least squares runs on it, the held-out error widens the residual scale.
+    y = np.asarray(target(np.array([[2.6, 1.9]])))[0]
+    fr = fit_least_squares(em, y, free=("shape", "scale"), n_starts=3)
+    assert fr.values["shape"] == pytest.approx(2.6, rel=0.05) and fr.values["scale"] == pytest.approx(1.9, rel=0.05)
+    with pytest.raises(ValueError, match="exceed the emulator's training box"):
+        fit_least_squares(em, y, free=("shape", "scale"), bounds={"shape": (1.0, 4.0)})
+
+
+def test_emulator_design_resumes_from_checkpoint(tmp_path):
+    calls = []
+
+    def fn(x):
+        calls.append(len(x))
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # interrupted after the first batch
+        return np.stack([np.sin(x[:, 0]) * 50 + 60, x[:, 1] * 10, x[:, 0] + x[:, 1], np.cos(x[:, 1]) + 5, x[:, 0] ** 2], -1)
+
+    spec = make_spec(("shape", "scale"))
+    with pytest.raises(KeyboardInterrupt):
+        build_emulator(fn, spec, source="toy-v1", n_train=16, n_test=8, batch=8, cache_dir=tmp_path)
+    assert len(list(tmp_path.glob("*.partial.npz"))) == 1
+    em = build_emulator(fn, spec, source="toy-v1", n_train=16, n_test=8, batch=8, cache_dir=tmp_path)
+    assert sum(calls) == 8 + 8 + 16  # first batch, the interrupted call, then only the remaining 16
+    assert em.error_sd.shape == (5,)
+    with pytest.raises(ValueError, match="source must identify fn"):
+        build_emulator(fn, spec, n_train=16, n_test=8, cache_dir=None)
