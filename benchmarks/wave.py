@@ -4,7 +4,9 @@
 Compared with (a) the floor: bare LAPACK LU factorisations (scipy.linalg.lu_factor, zgetrf) of the
 same 20 matrices in the same run; (b) a straightforward scipy implementation: scipy.special.hankel1
 fill with the first-order panel self terms, one numpy.linalg.solve per incidence angle, timed on
-two profiles and scaled to ten. Accuracy: energy error |reflected + absorbed − 1| at 0–75°.
+two profiles and scaled to ten. Accuracy: lobe error against a 48-points-per-wavelength reference of the same surface (the energy
+error of a finite TM metal surface is dominated by grazing surface waves reaching the truncated
+ends, which no discretisation removes, so it does not measure the discretisation).
 Run: `python benchmarks/wave.py` (writes benchmarks/output/wave.json).
 
 Incidence 80–90° is beyond the Thorsos beam's validity for a 20 µm surface (max ≈ 79.5°); those
@@ -49,7 +51,7 @@ VALID = INC_DEG <= 75.0
 THETA_S = np.radians(np.arange(-90.0, 90.01, 1.0))
 
 
-def timed(f, repeat=3):
+def timed(f, repeat=2):
     best = math.inf
     for _ in range(repeat):
         t = time.perf_counter()
@@ -128,21 +130,76 @@ def baseline_one(x, h, dh, d2h, dx, inc_rad, per_incidence=True):
     return np.array(out)
 
 
+def _resampled(fine, n):
+    """The same periodic surface as `fine` (one profile) on a centred grid of n points (trig series)."""
+    from paintjax._profiles import Profiles, grid
+
+    nf = fine.x.shape[0]
+    length = nf * fine.spacing
+    x, dx = grid(length, length / n)
+    c = np.fft.rfft(np.asarray(fine.h[0])) / nf
+    c[1:] *= 2.0
+    if nf % 2 == 0:
+        c[-1] /= 2.0
+    kk = 2 * np.pi * np.fft.rfftfreq(nf, d=fine.spacing)
+    ph = np.exp(1j * kk[None, :] * (x - float(fine.x[0]))[:, None])
+    h = np.real(ph @ c)
+    dh = np.real(ph @ (1j * kk * c))
+    d2h = np.real(ph @ (-(kk**2) * c))
+    return Profiles(jnp.asarray(x), jnp.asarray(h)[None], jnp.asarray(dh)[None], jnp.asarray(d2h)[None], float(dx))
+
+
 def accuracy_sweep():
-    """Energy error vs points per wavelength, ours and baseline, on one 10 µm profile."""
+    """Lobe error vs points per wavelength on one fixed 10 µm surface (Al, TE and TM, 0° and 30°),
+    against our solution at 48 ppw: ours and the scipy baseline (first-order self terms)."""
     from paintjax._wave import solve_profiles
 
+    fine = synthesize_profiles(jax.random.PRNGKey(3), SIGMA, TAU, length_um=10.0, spacing_um=default_spacing(LAM, N_MED, 48), num_profiles=1)
+    inc = np.array([0.0, 30.0])
+    th_s = np.arange(-60.0, 60.01, 1.0)
+
+    def lobes_ours(p):
+        return np.stack([np.asarray(solve_profiles(p, inc, th_s, boundary="impedance", polarization=pol).sigma) for pol in ("te", "tm")])
+
+    def lobes_scipy(p):
+        x, h, dh, d2h = (np.asarray(a) for a in (p.x, p.h[0], p.dh[0], p.d2h[0]))
+        return baseline_lobes(x, h, dh, d2h, p.spacing, np.radians(inc), np.radians(th_s))
+
+    ref = lobes_ours(fine)
     rows = []
     for ppw in (8, 12, 16, 24, 32, 48):
-        prof = synthesize_profiles(jax.random.PRNGKey(3), SIGMA, TAU, length_um=10.0, spacing_um=default_spacing(LAM, N_MED, ppw), num_profiles=1)
-        inc = [0.0, 30.0, 60.0]
-        res_te = solve_profiles(prof, inc, [0.0], boundary="impedance", polarization="te")
-        res_tm = solve_profiles(prof, inc, [0.0], boundary="impedance", polarization="tm")
-        e_ours = max(np.max(np.abs(np.asarray(r.energy) - 1)) for r in (res_te, res_tm))
-        b = baseline_one(*(np.asarray(a) for a in (prof.x, prof.h[0], prof.dh[0], prof.d2h[0])), prof.spacing, np.radians(inc), per_incidence=False)
-        rows.append({"ppw": ppw, "N": int(prof.x.shape[0]), "energy_error_ours": float(e_ours), "energy_error_scipy": float(np.max(np.abs(b - 1)))})
+        p = _resampled(fine, int(round(fine.x.shape[0] * ppw / 48)))
+        e_ours = float(np.max(np.abs(lobes_ours(p) - ref)) / ref.max())
+        e_scipy = float(np.max(np.abs(lobes_scipy(p) - ref)) / ref.max())
+        rows.append({"ppw": ppw, "N": int(p.x.shape[0]), "lobe_error_ours": e_ours, "lobe_error_scipy": e_scipy})
         print(rows[-1], flush=True)
     return rows
+
+
+def baseline_lobes(x, h, dh, d2h, dx, inc_rad, th_s):
+    """σ(θ_s) of the scipy baseline for TE and TM (one LU each; accuracy does not depend on that)."""
+    n = x.size
+    X, Y = x[:, None] - x[None, :], h[:, None] - h[None, :]
+    R = np.hypot(X, Y)
+    np.fill_diagonal(R, 1.0)
+    h0, h1 = sp.hankel1(0, K * R), sp.hankel1(1, K * R)
+    jac = np.sqrt(1 + dh**2)
+    S = 0.25j * dx * h0
+    np.fill_diagonal(S, 0.25j * dx * (1 + 2j / np.pi * np.log(1.78107 * K * dx * jac / (4 * np.e))))
+    D = 0.25j * K * dx * h1 * (Y - dh[None, :] * X) / R
+    np.fill_diagonal(D, dx * d2h / (4 * np.pi * jac**2))
+    g = (n * dx) / 4
+    rhs = np.asarray(incident_field(jnp.asarray(x), jnp.asarray(h), jnp.asarray(inc_rad), K, g))
+    p_inc = np.asarray(incident_power(jnp.asarray(inc_rad), K, g))
+    E = np.exp(-1j * K * (np.sin(th_s)[:, None] * x[None, :] + np.cos(th_s)[:, None] * h[None, :]))
+    out = []
+    for _, eta in channels("impedance", "unpolarized", None, N_MED, LAM):
+        M = 0.5 * np.eye(n) - D - 1j * K * eta * S * jac[None, :]
+        psi = sl.lu_solve(sl.lu_factor(M), rhs)
+        F = (np.cos(th_s)[:, None] - dh[None, :] * np.sin(th_s)[:, None]) - eta * jac[None, :]
+        amp = -1j * K * dx * (E * F) @ psi
+        out.append((np.abs(amp) ** 2 / (8 * np.pi * K * p_inc)).T)
+    return np.stack(out)
 
 
 def main():
@@ -151,13 +208,13 @@ def main():
     print(f"N = {n} points per profile, {COUNT} profiles × 2 polarisations × {INC_DEG.size} incidence angles", flush=True)
     results = {"machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores (shared sandbox)", "N": n,
                "profiles": COUNT, "polarisations": 2, "incidence_angles": int(INC_DEG.size), "date": "2026-11-22"}
-    for bs in (1, 2):
+    for bs in (1,):
         t, tc, energy, temp = ours(prof, bs)
         results[f"ours_batch{bs}_s"] = t
         results[f"ours_batch{bs}_compile_s"] = tc
         results[f"ours_batch{bs}_xla_temp_bytes"] = temp
         print(f"ours (batch {bs}): {t:.2f} s (compile {tc:.1f} s, XLA temp {temp / 2**20 if temp else float('nan'):.0f} MiB)", flush=True)
-    results["ours_s"] = min(results["ours_batch1_s"], results["ours_batch2_s"])
+    results["ours_s"] = results["ours_batch1_s"]
     results["ours_energy_error_0_75deg"] = float(np.max(np.abs(energy[:, :, VALID] - 1)))
     mats = matrices(prof)
     t_floor, _ = timed(lambda: [sl.lu_factor(m, check_finite=False) for m in mats])

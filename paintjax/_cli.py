@@ -11,7 +11,7 @@ import importlib
 import sys
 
 #: Sub-command modules under paintjax._commands, in the order `--help` lists them.
-COMMANDS = ("demo", "microfacet", "array", "brdf", "lobe", "fit", "design")
+COMMANDS = ("demo", "microfacet", "array", "brdf", "lobe", "fit", "design", "simulate", "table1")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -173,7 +173,8 @@ class ParameterSpec:
 
     def from_unconstrained_np(self, u) -> np.ndarray:
         """NumPy version of `from_unconstrained` (no JAX dispatch; for host-side hot loops)."""
-        z = 1.0 / (1.0 + np.exp(-np.asarray(u, dtype=float)))
+        with np.errstate(over="ignore"):
+            z = 1.0 / (1.0 + np.exp(-np.asarray(u, dtype=float)))
         t = self._a + (self._b - self._a) * z
         return np.where(self._is_log, np.exp(np.where(self._is_log, t, 0.0)), t)
 

@@ -235,6 +235,7 @@ def sample_posterior(
     resume: bool = True,
     progress: bool = True,
     pool=None,
+    inference_data: bool = True,
 ) -> PosteriorResult:
     """Sample the posterior of the free parameters with emcee (vectorised, resumable).
 
@@ -257,6 +258,7 @@ def sample_posterior(
         progress: tqdm progress bar.
         pool: optional pool with a `map` method (multiprocessing, MPI); the ensemble is split
             over its workers.
+        inference_data: build the ArviZ InferenceData (`idata`; skip for speed in bulk studies).
 
     Returns:
         A `PosteriorResult`.
@@ -270,7 +272,10 @@ def sample_posterior(
         if "discrepancy" not in (fixed or {}):
             free = free + ("discrepancy",)
     walkers = int(walkers)
-    lp = LogPosterior(forward, measured, free, fixed, bounds, instrument_sd, chunk=max(1, walkers // 2))
+    from ._fit import CHUNK
+
+    # Same chunk as least squares (one compiled forward) unless half an ensemble is larger.
+    lp = LogPosterior(forward, measured, free, fixed, bounds, instrument_sd, chunk=max(CHUNK, walkers // 2))
     p = len(lp.names)
     if walkers < 2 * p or walkers % 2:
         raise ValueError(f"walkers must be even and >= 2 × {p} parameters = {2 * p}, got {walkers}")
@@ -311,7 +316,7 @@ def sample_posterior(
         if it >= min_steps and np.all(n_tau * tau < it) and settled and ess >= min_ess:
             converged = True
             break
-    return _result(sampler, lp, converged, time.perf_counter() - t0, backend_path)
+    return _result(sampler, lp, converged, t0, backend_path, inference_data)
 
 
 def _initial_ball(lp: LogPosterior, init, walkers: int, rng, seed: int) -> np.ndarray:
@@ -357,7 +362,7 @@ def _read_meta(path: Path):
         return None
 
 
-def _result(sampler, lp: LogPosterior, converged: bool, seconds: float, backend_path) -> PosteriorResult:
+def _result(sampler, lp: LogPosterior, converged: bool, t0: float, backend_path, inference_data: bool) -> PosteriorResult:
     import arviz as az
 
     spec = lp.spec
@@ -383,7 +388,7 @@ def _result(sampler, lp: LogPosterior, converged: bool, seconds: float, backend_
     if "mean_tilt" in draws:
         posterior["mean_tilt"] = posterior["shape"] * posterior["scale"]
     lps = np.swapaxes(sampler.get_log_prob()[burn::thin], 0, 1)
-    idata = az.from_dict(
+    idata = None if not inference_data else az.from_dict(
         posterior=posterior,
         sample_stats={"lp": lps},
         observed_data={"L_star": lp.measured},
@@ -409,7 +414,7 @@ def _result(sampler, lp: LogPosterior, converged: bool, seconds: float, backend_
         walkers=int(sampler.nwalkers),
         converged=bool(converged),
         acceptance=float(np.mean(sampler.acceptance_fraction)),
-        seconds=seconds,
+        seconds=time.perf_counter() - t0,
         L_star_mean=Lm.mean(0),
         L_star_q05=np.quantile(Lm, 0.05, axis=0),
         L_star_q95=np.quantile(Lm, 0.95, axis=0),

@@ -407,12 +407,17 @@ def _new_ray(sc: _Scene, u, dtype):
     return pos.astype(dtype), d.astype(dtype), Ti.astype(dtype), c.astype(dtype), s.astype(dtype)
 
 
+def _has_delta(brdf) -> bool:
+    """Whether the BRDF's sampler can return its delta (mirror) direction with finite weight."""
+    return bool(brdf.is_delta) or getattr(brdf, "coherent", None) == "delta"
+
+
 def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     """Advance one lane by one step: its pending shadow rays and its ray. Returns (lane, tally)."""
-    pos, d, w, alive, cph, sph, nstep, nev, rid, sh_org, sh_dir, sh_lim, sh_val = ray
+    pos, d, w, alive, cph, sph, nstep, nev, rid, spec_last, sh_org, sh_dir, sh_lim, sh_val = ray
     dtype = pos.dtype
     m = sc.det_air.shape[0]
-    delta = sc.brdf.is_delta
+    has_delta = _has_delta(sc.brdf)
     u = _uniforms(key, _NU + 3 * m, dtype)
     kb = _key_from(key)
     nee = jnp.zeros(m, dtype)  # NEE is scored by `_shadows` one step later
@@ -452,34 +457,39 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     factor = jnp.where(hit, s_w, sc.albedo)
     if opt.edges == "absorb":
         factor = jnp.where(hit & side, 0.0, factor)
+    # was the sampled direction the BRDF's delta (mirror / coherent) branch?
+    if sc.brdf.is_delta:
+        spec = hit
+    elif has_delta:
+        mirror = wi_loc * jnp.array([-1.0, -1.0, 1.0], dtype)
+        spec = hit & (jnp.sum((wo_loc - mirror) ** 2) < 1e-8)
+    else:
+        spec = jnp.zeros((), bool)
 
     # --- next-event estimation: this event's shadow rays are traced in the next step
-    new_sh_val = jnp.zeros(m, dtype)
-    new_sh_dir = jnp.broadcast_to(ez, (m, 3))
-    new_sh_lim = jnp.zeros(m, dtype)
     origin = x_ev + sc.eps * n_ev
     origin = jnp.concatenate([origin[:2], jnp.clip(origin[2:], sc.eps, sc.h_b)])
-    if not delta:
-        uj = u[_NU : _NU + 2 * m].reshape(m, 2)
-        w_air = _cone(sc.det_air, sc.det_cos_alpha, uj[:, 0], uj[:, 1])
-        w_air = _rotz(w_air, cph, sph)
-        w_in = _refract_in(w_air, sc.n)
-        To = 1.0 - fresnel_dielectric(w_air[:, 2], 1.0, sc.n)[2]
-        wo_loc_j = _to_local(w_in, t1[None], t2[None], n_ev[None])
-        f_pl = sc.brdf.evaluate(jnp.broadcast_to(wi_loc, (m, 3)), wo_loc_j).astype(dtype)
-        f = jnp.where(hit, f_pl, sc.albedo / jnp.pi)
-        cos_o = jnp.maximum(wo_loc_j[:, 2], 0.0)
-        val = jnp.pi * w * f * cos_o * To / (sc.n**2 * w_in[:, 2])
-        score = event & (first | ~single)
-        if opt.edges == "absorb":
-            score = score & ~(hit & side)
-        val = jnp.where(score & jnp.isfinite(val) & (val > 0), val, 0.0)
-        if opt.shadow_roulette > 0:  # unbiased roulette on small contributions saves shadow rays
-            small = val < opt.shadow_roulette
-            val = jnp.where(small, jnp.where(u[_NU + 2 * m :] * opt.shadow_roulette < val, opt.shadow_roulette, 0.0), val)
-        new_sh_val = val.astype(dtype)
-        new_sh_dir = w_in.astype(dtype)
-        new_sh_lim = ((sc.h_b - origin[2]) / w_in[:, 2]).astype(dtype)
+    # the non-delta part of every event (primer, platelet lobe)
+    uj = u[_NU : _NU + 2 * m].reshape(m, 2)
+    w_air = _cone(sc.det_air, sc.det_cos_alpha, uj[:, 0], uj[:, 1])
+    w_air = _rotz(w_air, cph, sph)
+    w_in = _refract_in(w_air, sc.n)
+    To = 1.0 - fresnel_dielectric(w_air[:, 2], 1.0, sc.n)[2]
+    wo_loc_j = _to_local(w_in, t1[None], t2[None], n_ev[None])
+    f_pl = sc.brdf.evaluate(jnp.broadcast_to(wi_loc, (m, 3)), wo_loc_j).astype(dtype)
+    f = jnp.where(hit, f_pl, sc.albedo / jnp.pi)
+    cos_o = jnp.maximum(wo_loc_j[:, 2], 0.0)
+    val = jnp.pi * w * f * cos_o * To / (sc.n**2 * w_in[:, 2])
+    score = event & (first | ~single)
+    if opt.edges == "absorb":
+        score = score & ~(hit & side)
+    val = jnp.where(score & jnp.isfinite(val) & (val > 0), val, 0.0)
+    if opt.shadow_roulette > 0:  # unbiased roulette on small contributions saves shadow rays
+        small = val < opt.shadow_roulette
+        val = jnp.where(small, jnp.where(u[_NU + 2 * m :] * opt.shadow_roulette < val, opt.shadow_roulette, 0.0), val)
+    new_sh_val = val.astype(dtype)
+    new_sh_dir = w_in.astype(dtype)
+    new_sh_lim = ((sc.h_b - origin[2]) / w_in[:, 2]).astype(dtype)
 
     # --- top of the basecoat: clearcoat transit, Fresnel split, histogram
     cz = jnp.where(top, dz, 1.0)
@@ -492,9 +502,9 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     omega = 2.0 * jnp.pi * (1.0 - sc.det_cos_alpha)
     inside = (jnp.sum(sc.det_air * ex_inst[None], -1) >= sc.det_cos_alpha) & (omega > 0)
     hist = jnp.where(inside & (w_exit > 0), jnp.pi * w_exit / (jnp.maximum(omega, 1e-30) * jnp.maximum(ex_inst[2], 1e-12)), 0.0)
-    if delta:
-        # mirror platelets: the exiting weight is the splat of the deterministic mirror direction
-        nee = jnp.where(single, hist * (nev <= 1), hist)
+    # paths whose last event was a delta reflection: the exiting weight is the splat of the
+    # deterministic direction into the aperture (NEE cannot see a delta)
+    nee = jnp.where(spec_last & (~single | (nev <= 1)), hist, 0.0)
 
     # --- new state and ledger
     new_w = jnp.where(event, w * factor, jnp.where(top, w * Rint, w))
@@ -506,18 +516,14 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     new_pos = jnp.concatenate([jnp.mod(new_pos[:2], sc.tile), jnp.clip(new_pos[2:], 0.0, sc.h_b)])
     absorbed_pl = jnp.where(hit, w * (1.0 - factor), 0.0)
     absorbed_pr = jnp.where(bottom, w * (1.0 - factor), 0.0)
-    # single scattering: non-delta paths end after their first event (its NEE is scored); delta
-    # paths end at their second event (uncounted, cut before scattering) or at the internal
-    # reflection after the first
-    if delta:
-        second = event & (nev >= 1)
-        cut = single & alive & (second | (top & (nev >= 1)))
-        w_cut = jnp.where(cut, jnp.where(second, w, new_w), 0.0)
-        absorbed_pl = jnp.where(cut & second, 0.0, absorbed_pl)
-        absorbed_pr = jnp.where(cut & second, 0.0, absorbed_pr)
-    else:
-        cut = single & alive & event
-        w_cut = jnp.where(cut, new_w, 0.0)
+    # single scattering: a path ends after a non-delta first event (its NEE is scored), at its
+    # second event (uncounted, cut before scattering) or at the internal reflection after the
+    # first event
+    second = event & (nev >= 1)
+    cut = single & alive & (second | (top & (nev >= 1)) | (event & first & ~spec))
+    w_cut = jnp.where(cut, jnp.where(second, w, new_w), 0.0)
+    absorbed_pl = jnp.where(cut & second, 0.0, absorbed_pl)
+    absorbed_pr = jnp.where(cut & second, 0.0, absorbed_pr)
     new_w = jnp.where(cut, 0.0, new_w)
     alive2 = alive & ~cut
     rr = jnp.zeros((), dtype)
@@ -536,12 +542,11 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     ledger = jnp.stack([z, w_exit, absorbed_pl, absorbed_pr, rr, caps])
     ledger = jnp.where(alive, ledger, 0.0)
     hist = jnp.where(alive, hist, 0.0)
-    if delta:
-        nee = jnp.where(alive, nee, 0.0)
+    nee = jnp.where(alive, nee, 0.0)
     tally = jnp.concatenate([nee, hist, ledger, jnp.zeros(1, dtype)])
     keep_sh = alive & event
     new_ray = (new_pos.astype(dtype), new_d.astype(dtype), jnp.where(alive2, new_w, 0.0).astype(dtype), alive2, cph, sph,
-               nstep2, nev + event.astype(nev.dtype), rid, origin.astype(dtype), new_sh_dir,
+               nstep2, nev + event.astype(nev.dtype), rid, jnp.where(event, spec, spec_last), origin.astype(dtype), new_sh_dir,
                new_sh_lim, jnp.where(keep_sh, new_sh_val, 0.0))
     return new_ray, tally
 
@@ -591,7 +596,7 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
 
     def one_step(_, st):
         rays, tally, next_local = st
-        pos, d, w, alive, cph, sph, nstep, nev, rid, *sh = rays
+        pos, d, w, alive, cph, sph, nstep, nev, rid, spec, *sh = rays
         dtype = pos.dtype
         dead = ~alive
         rank = jnp.cumsum(dead.astype(idt)) - 1
@@ -605,15 +610,15 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
         w, cph, sph = jnp.where(start, w0, w), jnp.where(start, c0, cph), jnp.where(start, s0, sph)
         nstep = jnp.where(start, 0, nstep)
         nev = jnp.where(start, 0, nev)
+        spec = spec & ~start
         alive = alive | start
         next_local = next_local + jnp.sum(start).astype(idt)
         t_start = jnp.zeros_like(tally).at[:, -7].set((1.0 - w0).astype(tally.dtype)).at[:, -1].set(1.0)
         tally = tally + jnp.where(col, t_start, 0.0)
-        if not sc.brdf.is_delta:
-            nee = _shadows(sc, opt, *sh)
-            tally = tally.at[:, : nee.shape[1]].add(nee.astype(tally.dtype))
+        nee = _shadows(sc, opt, *sh)
+        tally = tally.at[:, : nee.shape[1]].add(nee.astype(tally.dtype))
         kstep = jax.vmap(lambda r, t: _ray_hash(key, r, t))(rid, nstep)
-        rays = (pos, d, w, alive, cph, sph, nstep, nev, rid, *sh)
+        rays = (pos, d, w, alive, cph, sph, nstep, nev, rid, spec, *sh)
         rays, inc = jax.vmap(lambda r, k: _step_one(sc, opt, r, k, single))(rays, kstep)
         return rays, tally + inc.astype(tally.dtype), next_local
 
@@ -643,7 +648,7 @@ def _initial_state(lanes_total: int, ndev: int, m: int, dtype, tdtype, idt):
     z = lambda *s, t=dtype: jnp.zeros(s, t)  # noqa: E731
     L = lanes_total
     rays = (z(L, 3), z(L, 3), z(L), jnp.zeros(L, bool), z(L), z(L), jnp.zeros(L, jnp.int32), jnp.zeros(L, jnp.int32),
-            jnp.zeros(L, idt), z(L, 3), jnp.zeros((L, m, 3), dtype).at[..., 2].set(1.0), z(L, m), z(L, m))
+            jnp.zeros(L, idt), jnp.zeros(L, bool), z(L, 3), jnp.zeros((L, m, 3), dtype).at[..., 2].set(1.0), z(L, m), z(L, m))
     tally = z(L, 2 * m + len(LEDGER_KEYS) + 1, t=tdtype)
     return rays, tally, jnp.zeros(ndev, idt)
 
@@ -800,9 +805,9 @@ def trace(
     brdf = MirrorBRDF(n_binder=n) if brdf is None else brdf
     if not isinstance(brdf, AbstractPlateletBRDF):
         raise ValueError(f"brdf must be an AbstractPlateletBRDF, got {type(brdf).__name__}")
-    if brdf.is_delta and geometry.detector_aperture_deg <= 0:
-        raise ValueError("geometry.detector_aperture_deg must be > 0 for a delta (mirror) platelet BRDF: "
-                         "a mirror sends nothing into an exact direction")
+    if _has_delta(brdf) and geometry.detector_aperture_deg <= 0:
+        raise ValueError("geometry.detector_aperture_deg must be > 0 for a platelet BRDF with a delta (mirror or "
+                         "coherent='delta') part: a delta sends nothing into an exact direction")
     if grid is None:
         grid = _default_grid(array)
     if bool(np.asarray(getattr(grid, "overflow", False))):

@@ -48,7 +48,7 @@ def call(brdf, name, *args):
     return _jitted(name)(brdf, *args)
 
 
-def hemisphere_integral(brdf, theta_i_deg, n=160):
+def hemisphere_integral(brdf, theta_i_deg, n=120):
     """∫ f_inc cosθ_o dω_o on a (θ_o, φ_o) Gauss–Legendre × uniform grid (independent of the BRDF)."""
     x, w = np.polynomial.legendre.leggauss(n)
     th = 0.25 * np.pi * (x + 1.0)
@@ -90,7 +90,7 @@ def test_kirchhoff_reflectance(theta_i):
     """∫ f cosθ_o dω_o (independent quadrature) equals the stated incoherent + coherent reflectance."""
     b = BeckmannBRDF(SIGMA, TAU)
     mu = np.cos(np.deg2rad(theta_i))
-    stated = float(b.incoherent_albedo(mu))
+    stated = float(call(b, "incoherent_albedo", jnp.asarray(mu)))
     assert abs(hemisphere_integral(b, theta_i) - stated) < 2e-3 * stated
     # the coherent diffraction lobe carries R_coh (fine quadrature around the specular point)
     s = b.coherent_width
@@ -100,11 +100,11 @@ def test_kirchhoff_reflectance(theta_i):
     bx = -wi[0] + r[:, None] * np.cos(ph)
     by = r[:, None] * np.sin(ph)
     wo = np.stack([bx, by, np.sqrt(1 - bx**2 - by**2)], -1)
-    coh = np.asarray(b._coherent_lobe(jnp.asarray(wi), jnp.asarray(wo)))
+    coh = np.asarray(call(b, "_coherent_lobe", jnp.asarray(wi), jnp.asarray(wo)))
     integral = np.sum(coh * r[:, None]) * (r[1] - r[0]) * 2 * np.pi / 128
-    np.testing.assert_allclose(integral, float(b.coherent_reflectance(mu)), rtol=2e-3)
+    np.testing.assert_allclose(integral, float(call(b, "coherent_reflectance", jnp.asarray(mu))), rtol=2e-3)
     # total: incoherent + coherent is a physically sensible reflectance below the Fresnel one + few %
-    assert 0.0 < float(b.albedo(mu)) < 1.0
+    assert 0.0 < float(call(b, "albedo", jnp.asarray(mu))) < 1.0
 
 
 def test_he_torrance_limits():
@@ -149,7 +149,7 @@ def test_sampling_lower_face():
     """Both faces scatter alike: a direction below the plane is answered below the plane."""
     b = BeckmannBRDF(SIGMA, TAU)
     wi = jnp.broadcast_to(jnp.asarray(direction(30.0) * np.array([1, 1, -1])), (2000, 3))
-    wo, w = b.sample(jax.random.PRNGKey(2), wi)
+    wo, w = call(b, "sample", jax.random.PRNGKey(2), wi)
     assert np.all(np.asarray(wo)[:, 2] <= 0) and np.all(np.asarray(w) >= 0)
 
 

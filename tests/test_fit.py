@@ -1,6 +1,5 @@
 """Least squares (Optimistix LM, multi-start), forward models and the emulator."""
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -12,14 +11,19 @@ MIRROR = AnalyticForward(rough=False)
 TRUTH = {"shape": 2.6, "scale": 1.9, "diffuse": 0.15}
 
 
+def curve(model, x):
+    """One L* curve, evaluated in the 16-row batch shape the inverse layer compiles for."""
+    return np.asarray(model(np.tile(np.asarray(x, dtype=float), (16, 1))))[0]
+
+
 def _truth_curve(model=MIRROR, truth=TRUTH):
-    return np.asarray(model(np.array([truth[n] for n in model.parameter_names])))
+    return curve(model, [truth[n] for n in model.parameter_names])
 
 
 def test_forward_shapes_and_validation():
-    y = MIRROR(np.array([[2.0, 2.0, 0.1], [3.0, 1.5, 0.0]]))
-    assert y.shape == (2, 5) and np.all(np.isfinite(y))
-    assert MIRROR(np.array([2.0, 2.0, 0.1])).shape == (5,)
+    y = MIRROR(np.tile([[2.0, 2.0, 0.1], [3.0, 1.5, 0.0]], (8, 1)))
+    assert y.shape == (16, 5) and np.all(np.isfinite(y))
+    assert np.all(np.diff(y[0]) < 0)  # lightness falls away from specular
     with pytest.raises(ValueError, match="theta must have shape"):
         MIRROR(np.ones((2, 4)))
     with pytest.raises(ValueError, match="lobe must be"):
@@ -63,7 +67,7 @@ def test_noisy_recovery_and_covariance():
 def test_rough_platelets_sigma_tau_recovered():
     rough = AnalyticForward(rough=True)
     truth = {"shape": 2.3, "scale": 2.2, "sigma": 0.05, "tau": 0.7, "diffuse": 0.0}
-    y = np.asarray(rough(np.array([truth[n] for n in rough.parameter_names])))
+    y = curve(rough, [truth[n] for n in rough.parameter_names])
     fr = fit_least_squares(rough, y, free=("sigma", "tau"), fixed={"shape": 2.3, "scale": 2.2}, n_starts=3, seed=0)
     assert fr.success
     assert fr.values["sigma"] == pytest.approx(0.05, rel=1e-3)
@@ -73,11 +77,11 @@ def test_rough_platelets_sigma_tau_recovered():
 
 def test_multistart_survives_failing_starts():
     # A forward that is NaN for part of the box: those starts fail, the fit still succeeds.
-    def fn(theta):
-        L = MIRROR.evaluate(theta)
-        return jnp.where(theta[:, :1] > 6.0, jnp.nan, L)
+    def fn(theta):  # plain NumPy around the compiled model (no new compilation)
+        L = np.asarray(MIRROR(np.asarray(theta)))
+        return np.where(np.asarray(theta)[:, :1] > 6.0, np.nan, L)
 
-    broken = CallableForward(fn, MIRROR.parameter_names, identity="test-broken-mirror-v1", jittable=True)
+    broken = CallableForward(fn, MIRROR.parameter_names, identity="test-broken-mirror-v1")
     y = _truth_curve()
     fr = fit_least_squares(broken, y, free=("shape", "scale", "diffuse"), n_starts=8, seed=3)
     assert fr.success
@@ -112,19 +116,20 @@ def test_fit_bad_inputs():
 def test_emulator_cached_with_measured_error(tmp_path):
     spec = make_spec(("shape", "scale"), {"shape": (1.5, 4.0), "scale": (1.2, 3.5)})
     target = MIRROR.restrict(spec.names, {"diffuse": 0.15})
-    em = build_emulator(target, spec, n_train=48, n_test=24, seed=0, cache_dir=tmp_path, batch=16)
+    em = build_emulator(target, spec, n_train=32, n_test=16, seed=0, cache_dir=tmp_path, batch=16)
     assert em.parameter_names == ("shape", "scale")
     err = em.error_sd
     assert err.shape == (5,) and np.all(err >= 0) and np.max(err) < 1.0
     files = list(tmp_path.glob("emulator-*.npz"))
     assert len(files) == 1 and not list(tmp_path.glob("*.partial.npz"))
-    again = build_emulator(target, spec, n_train=48, n_test=24, seed=0, cache_dir=tmp_path)
+    again = build_emulator(target, spec, n_train=32, n_test=16, seed=0, cache_dir=tmp_path)
     assert again.key == em.key and np.allclose(again.error_sd, err)
     x = np.array([[2.3, 2.2], [3.1, 1.6]])
+    x = np.tile(x, (8, 1))
     chk = emulator_check(em, target, x)
     assert np.all(chk["max_abs"] < 2.0)
     # The emulator is a ForwardModel: least squares runs on it, the held-out error widens the residual scale.
-    y = np.asarray(target(np.array([[2.6, 1.9]])))[0]
+    y = np.asarray(target(np.tile([[2.6, 1.9]], (16, 1))))[0]
     fr = fit_least_squares(em, y, free=("shape", "scale"), n_starts=3)
     assert fr.values["shape"] == pytest.approx(2.6, rel=0.05) and fr.values["scale"] == pytest.approx(1.9, rel=0.05)
     with pytest.raises(ValueError, match="exceed the emulator's training box"):

@@ -62,10 +62,11 @@ def test_white_furnace(empty_scene):
     arr, grid = empty_scene
     geo = ma98_geometry(45.0)
     rho = 0.8
-    res = trace(arr, geo, LambertPlateletBRDF(0.5), grid=grid, n=N_COAT, primer_albedo=rho, rays=60_000, seed=3, options=OPT)
+    res = trace(arr, geo, LambertPlateletBRDF(0.5), grid=grid, n=N_COAT, primer_albedo=rho, rays=30_000, seed=3, options=OPT)
     r_i = coat_internal_diffuse_reflectance(N_COAT)
     expected = _fresnel_T(45.0) * _fresnel_T(np.asarray(geo.detector_polar_deg)) * rho / (N_COAT**2 * (1 - rho * r_i))
     dev = (res.reflectance_factor - expected) / res.reflectance_factor_se
+    print("furnace: deviation / SE", np.round(dev, 2), "relative SE", np.round(res.reflectance_factor_se / expected, 4))
     assert np.all(np.abs(dev) < K), dev
     assert np.all(res.reflectance_factor_se < 0.01 * expected)  # the check has teeth (< 1 % SE)
     e = res.energy
@@ -78,11 +79,12 @@ def test_energy_lossless(lambert_scene):
     """Lossless platelets and a ρ = 1 primer: everything that enters leaves (to 1e-3)."""
     arr, grid = lambert_scene
     res = trace(arr, ma98_geometry(45.0), LambertPlateletBRDF(1.0), grid=grid, n=N_COAT, primer_albedo=1.0,
-                rays=30_000, seed=5, options=OPT)
+                rays=15_000, seed=5, options=OPT)
     e = res.energy
     entered = 1.0 - e["top_reflection"]
     assert e["absorbed_platelets"] == 0.0 and e["absorbed_primer"] == 0.0
     assert abs(sum(e.values()) - 1.0) < 1e-5
+    print("energy: exited / entered - 1 =", e["exited"] / entered - 1.0, e)
     assert abs(e["exited"] / entered - 1.0) < 1e-3, e  # roulette (zero-mean) and caps are all that remain
 
 
@@ -113,6 +115,8 @@ def test_single_scatter_mirror_matches_microfacet_model():
                 single_scatter=True, options=OPT_THIN)
     model = np.asarray(microfacet_reflectance_factor(geo, GammaTilt(*SILVER1_TILT), n=N_COAT, platelet=mirror,
                                                      exit_occlusion=True, aperture_nodes=12))
+    print("single scatter: tracer", res.reflectance_factor[:3], "SE", res.reflectance_factor_se[:3], "model", model[:3],
+          "deviation / SE", np.round((res.reflectance_factor[:3] - model[:3]) / res.reflectance_factor_se[:3], 2))
     for j in range(3):  # 15°, 25°, 45°
         R, se = res.reflectance_factor[j], res.reflectance_factor_se[j]
         assert se < (0.03, 0.03, 0.08)[j] * R  # the 45° detector sees the tilt tail (R ≈ 0.05)
@@ -123,14 +127,17 @@ def test_nee_and_histogram_agree_as_aperture_shrinks(lambert_scene):
     """NEE and the finite-aperture histogram estimate the same cone average; both tend to NEE(0)."""
     arr, grid = lambert_scene
     brdf = LambertPlateletBRDF(0.9)
-    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, rays=100_000, seed=11, options=OPT)
+    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, rays=60_000, seed=11, options=OPT)
     exact = trace(arr, ma98_geometry(45.0), brdf, **kw)
-    for alpha in (10.0, 5.0):
+    for alpha in (12.0, 6.0):
         res = trace(arr, ma98_geometry(45.0, detector_aperture_deg=alpha), brdf, **kw)
         diff = res.batch_reflectance_factor - res.batch_histogram
         se_diff = diff.std(axis=0, ddof=1) / np.sqrt(diff.shape[0])
-        assert np.all(np.abs(res.reflectance_factor - res.histogram_reflectance_factor) < K * se_diff)
         se = np.hypot(res.histogram_se, exact.reflectance_factor_se)
+        print(f"aperture {alpha}°: (NEE − hist)/SE", np.round((res.reflectance_factor - res.histogram_reflectance_factor) / se_diff, 2),
+              "(hist − NEE(0))/SE", np.round((res.histogram_reflectance_factor - exact.reflectance_factor) / se, 2),
+              "hist rel. SE", np.round(res.histogram_se / res.histogram_reflectance_factor, 3))
+        assert np.all(np.abs(res.reflectance_factor - res.histogram_reflectance_factor) < K * se_diff)
         assert np.all(np.abs(res.histogram_reflectance_factor - exact.reflectance_factor) < K * se)
         assert np.all(res.histogram_se < 0.1 * res.histogram_reflectance_factor)
 
@@ -139,15 +146,16 @@ def test_reciprocity(lambert_scene):
     """Swapping source and detector leaves the reflectance factor unchanged (non-delta platelets)."""
     arr, grid = lambert_scene
     brdf = LambertPlateletBRDF(0.9)
-    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, rays=100_000, options=OPT)
+    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, rays=25_000, options=OPT)
     # A: source (30°, az 180); detectors (60°, az 0) and (45°, az 90) among five
     a = trace(arr, custom_geometry(30.0, [60.0, 45.0, 10.0, 20.0, 70.0], [0.0, 90.0, 0.0, 180.0, 45.0]), brdf, seed=21, **kw)
     b = trace(arr, custom_geometry(60.0, [30.0, 5.0, 15.0, 25.0, 35.0], [180.0] * 5, illumination_azimuth_deg=0.0), brdf, seed=22, **kw)
     c = trace(arr, custom_geometry(45.0, [30.0, 5.0, 15.0, 25.0, 35.0], [180.0] * 5, illumination_azimuth_deg=90.0), brdf, seed=23, **kw)
     for fwd, fse, bwd, bse in ((a.reflectance_factor[0], a.reflectance_factor_se[0], b.reflectance_factor[0], b.reflectance_factor_se[0]),
                                (a.reflectance_factor[1], a.reflectance_factor_se[1], c.reflectance_factor[0], c.reflectance_factor_se[0])):
+        print("reciprocity:", fwd, bwd, "deviation / SE", (fwd - bwd) / np.hypot(fse, bse), "rel. SE", fse / fwd)
         assert abs(fwd - bwd) < K * np.hypot(fse, bse), (fwd, fse, bwd, bse)
-        assert fse < 0.03 * fwd
+        assert fse < 0.02 * fwd
 
 
 def test_deterministic_and_validated(empty_scene):

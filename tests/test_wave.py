@@ -252,3 +252,25 @@ def test_bad_input_raises(kwargs, match):
 def test_max_incidence():
     assert 70.0 < max_incidence_deg(20.0) < 80.0
     assert max_incidence_deg(8.0) < max_incidence_deg(20.0)
+
+
+def test_cli_lobe_json(tmp_path, capsys):
+    """`paintjax lobe --json` on a synthesised and on a loaded (nm, CSV) profile."""
+    import json
+
+    from paintjax._cli import main
+
+    rc = main(["lobe", "--profiles", "1", "--length", "6", "--step", "2", "--json", "--out", str(tmp_path / "a")])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and set(out) >= {"theta_s_deg", "sigma", "sigma_coherent", "energy"}
+    assert len(out["sigma"]) == len(out["theta_s_deg"]) == 91
+    assert out["energy"]["scattered"] + out["energy"]["absorbed"] == pytest.approx(1.0, abs=2e-3)
+    assert (tmp_path / "a" / "lobe.png").exists()
+    p = synthesize_profiles(jax.random.PRNGKey(2), 0.051, 0.64, length_um=6.0, spacing_um=0.01, num_profiles=1)
+    x = np.asarray(p.x) - float(p.x[0])
+    np.savetxt(tmp_path / "scan.csv", np.c_[x * 1e3, (np.asarray(p.h[0]) + 0.2 * (x / 6.0) ** 2) * 1e3], delimiter=",", header="x,z", comments="")
+    rc = main(["lobe", "--profile", str(tmp_path / "scan.csv"), "--units", "nm", "--step", "2", "--json", "--out", str(tmp_path / "b")])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["energy"]["scattered"] + out["energy"]["absorbed"] == pytest.approx(1.0, abs=2e-3)
+    assert main(["lobe", "--incidence", "89", "--profiles", "1", "--length", "6"]) == 2
+    assert "incidence_deg" in capsys.readouterr().err

@@ -1,0 +1,198 @@
+"""`paintjax simulate`: five-angle L* of a paint from its microstructure through the ray tracer."""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from importlib import resources
+
+import numpy as np
+
+from ._common import add_json_argument, print_json
+
+BRDFS = ("wave", "mirror", "kirchhoff")
+#: Primer albedo used when none is given: a mid-grey automotive primer (assumption; the basecoat
+#: hides it, so it moves L* by well under one unit for the reference samples).
+DEFAULT_PRIMER_ALBEDO = 0.3
+#: Detector aperture half-angle [deg] used for delta (mirror) platelets, which need a finite one.
+MIRROR_APERTURE_DEG = 2.0
+#: Default precision when no ray count is given: L* standard error at every angle.
+DEFAULT_TARGET_SE = 0.5
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "simulate",
+        help="ray-trace a sample's microstructure: five-angle L* with standard errors",
+        description="Ray-batch Monte Carlo through a generated platelet array under a flat clearcoat "
+        "(45° illumination, aspecular 15, 25, 45, 75, 110°). Lengths in µm, angles in degrees.",
+    )
+    p.add_argument("--sample", default="silver1", help="reference sample: silver1 or silver2 (default silver1)")
+    p.add_argument("--shape", type=float, help="tilt gamma shape (> 0); default: the sample's")
+    p.add_argument("--scale", type=float, help="tilt gamma scale [deg] (> 0); default: the sample's")
+    p.add_argument("--sigma", type=float, help="platelet rms roughness σ [µm]; default: the sample's (0.051)")
+    p.add_argument("--tau", type=float, help="platelet correlation length τ [µm]; default: the sample's (0.64)")
+    p.add_argument("--pvc", type=float, help="pigment volume concentration in (0, 0.5]; default: the sample's (0.20)")
+    p.add_argument("--thickness", type=float, help="basecoat thickness h_b [µm]; default: the sample's (20)")
+    p.add_argument("--brdf", choices=BRDFS, default="wave",
+                   help="platelet BRDF: wave (hybrid, wave-based table; default), mirror (smooth Al), kirchhoff (analytic Beckmann)")
+    p.add_argument("--reflectance", type=float, help="constant platelet reflectance in [0, 1] (mirror only); default: Fresnel of Al")
+    p.add_argument("--primer-albedo", type=float, default=DEFAULT_PRIMER_ALBEDO,
+                   help=f"Lambertian primer albedo in [0, 1] (default {DEFAULT_PRIMER_ALBEDO})")
+    p.add_argument("--waviness", type=float, default=0.0, help="clearcoat rms slope [deg] (rough top interface; default 0 = flat)")
+    p.add_argument("--rays", type=int, help=f"number of rays; default: as many as needed for an L* standard error ≤ {DEFAULT_TARGET_SE}")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the array and the rays (default 0)")
+    p.add_argument("--single-scatter", action="store_true", help="score only the first scattering event of each path")
+    add_json_argument(p)
+    p.set_defaults(func=run)
+
+
+def _source_digest(*modules: str) -> str:
+    h = hashlib.sha256()
+    for m in modules:
+        h.update(resources.files("paintjax").joinpath(m).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def sample_array(sample: str, *, seed: int = 0, shape=None, scale=None, pvc=None, thickness=None):
+    """The platelet array of a reference sample (with overrides), cached on disk by content."""
+    from .._cache import cached_arrays
+    from .._microstructure import PlateletArray, platelet_array_for_sample
+    from .._samples import load_sample
+    from .._tilt import GammaTilt
+
+    s = load_sample(sample)
+    tilt = GammaTilt(s.tilt_shape.value if shape is None else shape, s.tilt_scale.value if scale is None else scale)
+    overrides = {"tilt": tilt}
+    if pvc is not None:
+        overrides["pvc"] = pvc
+    if thickness is not None:
+        overrides["basecoat_thickness"] = thickness
+    inputs = {
+        "sample": s.name, "seed": int(seed), "shape": float(tilt.shape), "scale": float(tilt.scale_deg),
+        "pvc": None if pvc is None else float(pvc), "thickness": None if thickness is None else float(thickness),
+        "generator": _source_digest("_microstructure.py", "_sizes.py", "_overlap.py", "_tilt.py"),
+    }
+
+    def build():
+        a = platelet_array_for_sample(s.name, seed, **overrides)
+        return {"centers": np.asarray(a.centers), "normals": np.asarray(a.normals), "axes_u": np.asarray(a.axes_u),
+                "widths": np.asarray(a.widths), "thickness": np.asarray(a.thickness), "tile": np.asarray(a.tile),
+                "basecoat_thickness": np.asarray(a.basecoat_thickness)}
+
+    d, _ = cached_arrays("platelet-array", inputs, build)
+    import jax.numpy as jnp
+
+    return PlateletArray(
+        centers=jnp.asarray(d["centers"]), normals=jnp.asarray(d["normals"]), axes_u=jnp.asarray(d["axes_u"]),
+        widths=jnp.asarray(d["widths"]), thickness=float(d["thickness"]), tile=tuple(float(x) for x in d["tile"]),
+        basecoat_thickness=float(d["basecoat_thickness"]),
+    )
+
+
+def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=None):
+    """The platelet BRDF of a `--brdf` choice (the wave table is built or read from the cache)."""
+    from .._brdf import MirrorBRDF
+
+    if kind not in BRDFS:
+        raise ValueError(f"brdf must be one of {BRDFS}, got {kind!r}")
+    if kind == "mirror":
+        return MirrorBRDF(n_binder=n, reflectance=reflectance)
+    if reflectance is not None:
+        raise ValueError("reflectance applies to --brdf mirror only (rough BRDFs take their reflectance from Al optics)")
+    if kind == "kirchhoff":
+        from .._beckmann import BeckmannBRDF
+
+        return BeckmannBRDF(sigma, tau, n_medium=n)
+    try:
+        from .._brdf_table import platelet_brdf_table
+    except ImportError as err:  # pragma: no cover - depends on the BRDF issue
+        raise ValueError(f"brdf 'wave' is unavailable: {err}") from None
+    return platelet_brdf_table(sigma, tau, n_medium=n)
+
+
+def simulate(
+    sample: str = "silver1",
+    *,
+    shape=None,
+    scale=None,
+    sigma=None,
+    tau=None,
+    pvc=None,
+    thickness=None,
+    brdf: str = "wave",
+    reflectance=None,
+    primer_albedo: float = DEFAULT_PRIMER_ALBEDO,
+    waviness: float = 0.0,
+    rays: int | None = None,
+    seed: int = 0,
+    single_scatter: bool = False,
+    target_se: float = DEFAULT_TARGET_SE,
+    max_rays: int = 4_000_000,
+    options=None,
+) -> dict:
+    """Five-angle tracer prediction for a sample with overrides, as the CLI's JSON dict (plus extras)."""
+    from .._grid import build_grid
+    from .._instrument import STANDARD_ASPECULAR, ma98_geometry
+    from .._lightness import flop_index
+    from .._samples import load_sample
+    from .._tracer import trace
+
+    t0 = time.perf_counter()
+    s = load_sample(sample)
+    if waviness != 0.0:
+        raise ValueError("waviness: the rough (wavy) clearcoat is not implemented; only 0 (flat) is accepted")
+    if rays is not None and int(rays) < 1:
+        raise ValueError(f"rays must be a positive integer, got {rays!r}")
+    n = s.binder_index
+    sigma = s.sigma.value if sigma is None else sigma
+    tau = s.tau.value if tau is None else tau
+    platelet = platelet_brdf(brdf, sigma=sigma, tau=tau, n=n, reflectance=reflectance)
+    array = sample_array(s.name, seed=seed, shape=shape, scale=scale, pvc=pvc, thickness=thickness)
+    grid = build_grid(array)
+    aperture = MIRROR_APERTURE_DEG if platelet.is_delta else 0.0
+    geometry = ma98_geometry(45.0, STANDARD_ASPECULAR, detector_aperture_deg=aperture)
+    kwargs = dict(grid=grid, n=n, clearcoat_thickness=s.clearcoat_thickness, primer_albedo=primer_albedo, seed=seed,
+                  single_scatter=single_scatter, options=options)
+    if rays is None:
+        res = trace(array, geometry, platelet, rays=131072, target_se_lstar=target_se, max_rays=max_rays, **kwargs)
+    else:
+        res = trace(array, geometry, platelet, rays=int(rays), **kwargs)
+    out = res.to_dict()
+    out["seconds"] = time.perf_counter() - t0
+    out["tracing_seconds"] = res.seconds
+    out["sample"] = s.name
+    out["brdf"] = brdf
+    out["aperture_deg"] = aperture
+    out["histogram_reflectance_factor"] = res.histogram_reflectance_factor
+    L = res.L_star
+    out["flop_index"] = float(flop_index(L[0], L[2], L[4]))
+    out["measured_L_star"] = np.asarray(s.L_star)
+    out["platelets"] = int(np.asarray(array.widths).shape[0])
+    out["tile_um"] = list(array.tile)
+    return out
+
+
+_JSON_KEYS = ("aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds")
+
+
+def run(args) -> int:
+    r = simulate(
+        args.sample, shape=args.shape, scale=args.scale, sigma=args.sigma, tau=args.tau, pvc=args.pvc,
+        thickness=args.thickness, brdf=args.brdf, reflectance=args.reflectance, primer_albedo=args.primer_albedo,
+        waviness=args.waviness, rays=args.rays, seed=args.seed, single_scatter=args.single_scatter,
+    )
+    if args.json:
+        print_json({k: r[k] for k in _JSON_KEYS})
+        return 0
+    print(f"Ray tracer, {r['sample']}: {r['brdf']} platelets, {r['platelets']} in a {r['tile_um'][0]:.0f} × {r['tile_um'][1]:.0f} µm tile"
+          f"{', detector aperture %.1f°' % r['aperture_deg'] if r['aperture_deg'] else ''}"
+          f"{', single scattering' if args.single_scatter else ''}")
+    print(f"{'aspecular':>10} {'R factor':>10} {'L*':>8} {'± SE':>6} {'measured':>9}")
+    for row in zip(r["aspecular_deg"], r["reflectance_factor"], r["L_star"], r["L_star_se"], r["measured_L_star"]):
+        print(f"{row[0]:>9.0f}° {row[1]:>10.4f} {row[2]:>8.1f} {row[3]:>6.2f} {row[4]:>9.1f}")
+    print(f"flop index: {r['flop_index']:.2f}")
+    e = r["energy"]
+    print("energy: " + ", ".join(f"{k.replace('_', ' ')} {v:.4f}" for k, v in e.items()) + f" (sum {sum(e.values()):.6f})")
+    print(f"{r['rays']} rays in {r['tracing_seconds']:.1f} s tracing ({r['seconds']:.1f} s in all)")
+    return 0
