@@ -22,7 +22,7 @@ from fractions import Fraction
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Complex, Float
+from jaxtyping import Array, ArrayLike, Complex
 
 #: Switch between the ascending series and the modulus–phase form.
 X_SWITCH = 7.0

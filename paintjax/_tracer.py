@@ -87,7 +87,6 @@ class TracerOptions(eqx.Module):
         roulette_weight: Russian roulette below this weight (0 disables roulette).
         max_steps: steps after which a ray is capped (its weight goes to the ledger's caps).
         randomize_azimuth: rotate the instrument by a random azimuth per ray.
-        chunk_rays: with `target_se`, rays added per round.
         shadow_roulette: NEE contributions (reflectance-factor units per ray) below this are kept
             with probability value/threshold and raised to it (unbiased; 0 disables).
         shadow_buffer: shadow rays traced per pass, as a fraction of lanes × detectors; active
@@ -99,14 +98,13 @@ class TracerOptions(eqx.Module):
             for µm-scale boxes in a sub-mm tile and twice as fast; tallies are float64 under x64).
     """
 
-    lanes: int = eqx.field(static=True, default=8192)
+    lanes: int = eqx.field(static=True, default=2048)
     steps_per_call: int = eqx.field(static=True, default=16)
     cells_per_step: int = eqx.field(static=True, default=3)
     batches: int = eqx.field(static=True, default=32)
     roulette_weight: float = eqx.field(static=True, default=0.05)
     max_steps: int = eqx.field(static=True, default=1000)
     randomize_azimuth: bool = eqx.field(static=True, default=True)
-    chunk_rays: int = eqx.field(static=True, default=65536)
     float64: bool = eqx.field(static=True, default=False)
     shadow_roulette: float = eqx.field(static=True, default=0.02)
     shadow_buffer: float = eqx.field(static=True, default=0.25)
@@ -115,7 +113,7 @@ class TracerOptions(eqx.Module):
     def __check_init__(self):
         for name, v, lo in (("lanes", self.lanes, 1), ("steps_per_call", self.steps_per_call, 1),
                             ("cells_per_step", self.cells_per_step, 2), ("batches", self.batches, 8),
-                            ("max_steps", self.max_steps, 1), ("chunk_rays", self.chunk_rays, 1)):
+                            ("max_steps", self.max_steps, 1)):
             if int(v) < lo:
                 raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
         if self.lanes % self.batches:
@@ -395,9 +393,9 @@ def _key_from(h):
     return jnp.stack([_mix(h ^ jnp.uint32(0xA511E9B3)), _mix(h ^ jnp.uint32(0x63D83595))])
 
 
-def _new_ray(sc: _Scene, u, dtype):
+def _new_ray(sc: _Scene, u, dtype, randomize_azimuth: bool = True):
     """Position, direction, weight, rotation (cos, sin) of a fresh ray from uniforms u (5,)."""
-    phi = 2.0 * jnp.pi * u[4]
+    phi = 2.0 * jnp.pi * u[4] if randomize_azimuth else jnp.zeros((), dtype)
     c, s = jnp.cos(phi), jnp.sin(phi)
     w_air = _cone(sc.illum_air, sc.illum_cos_alpha, u[2], u[3])
     w_air = _rotz(w_air, c, s)
@@ -604,7 +602,7 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
         start = dead & (local_id < n_local)
         rid = jnp.where(start, local_id * ndev + dev, rid)
         ug = jax.vmap(lambda r: _uniforms(_ray_hash(key, r, jnp.asarray(0x7FFFFFFF, jnp.uint32)), 5, dtype))(rid)
-        p0, d0, w0, c0, s0 = jax.vmap(lambda uu: _new_ray(sc, uu, dtype))(ug)
+        p0, d0, w0, c0, s0 = jax.vmap(lambda uu: _new_ray(sc, uu, dtype, opt.randomize_azimuth))(ug)
         col = start[:, None]
         pos, d = jnp.where(col, p0, pos), jnp.where(col, d0, d)
         w, cph, sph = jnp.where(start, w0, w), jnp.where(start, c0, cph), jnp.where(start, s0, sph)
