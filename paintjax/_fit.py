@@ -109,15 +109,18 @@ class FitResult:
 
 
 def check_measured(measured, m: int, name: str = "measured") -> np.ndarray:
-    """Concrete L* vector of length m with finite values in [0, 250] (ValueError otherwise)."""
+    """Concrete L* vector of length m with finite values in [−5, 250] (ValueError otherwise).
+
+    Slightly negative values are accepted: Gaussian noise on a dark angle produces them.
+    """
     try:
         y = np.asarray(measured, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be {m} numbers (L* per angle), got {measured!r}") from None
     if y.size != m:
         raise ValueError(f"{name} must have {m} values (one L* per angle), got {y.size}")
-    if np.any(~np.isfinite(y)) or np.any(y < 0) or np.any(y > 250):
-        raise ValueError(f"{name} L* values must be finite and lie in [0, 250], got {y.tolist()}")
+    if np.any(~np.isfinite(y)) or np.any(y < -5) or np.any(y > 250):
+        raise ValueError(f"{name} L* values must be finite and lie in [-5, 250], got {y.tolist()}")
     return y
 
 

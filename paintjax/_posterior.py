@@ -454,9 +454,6 @@ def corner_plot(result: PosteriorResult, *, names: Sequence[str] | None = None, 
     Returns:
         The matplotlib figure.
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
     names = list(names or (list(result.names) + (["mean_tilt"] if "shape" in result.names and "scale" in result.names else [])))

@@ -28,14 +28,16 @@ Transport.
   a finite tile offers, which matters for narrow platelet lobes.
 
 Estimators (reflectance factor R = π L / E, brief §3).
-* Next-event estimation: at every non-delta scattering event and for every detector, the BRDF
-  toward the detector's refracted internal direction ω_j (a uniform random direction of the
-  detector's aperture cone when it is finite), a shadow ray to the top of the basecoat through
-  the grid, the exit transmittance T_o and the n² radiance change:
-  R_j += π w f cos V T_o / (n² cosθ_j).
-  Delta (mirror) platelets have no finite BRDF value: for them the tracer scores the exiting
-  weight into each finite detector aperture (the splat of the deterministic mirror direction),
-  so a finite `detector_aperture_deg` is required and the NEE and histogram columns coincide.
+* Next-event estimation: at every scattering event and for every detector, the non-delta part of
+  the BRDF (Lambert for the primer) toward the detector's refracted internal direction ω_j (a
+  uniform random direction of the detector's aperture cone when it is finite), a shadow ray to
+  the top of the basecoat through the grid, the exit transmittance T_o and the n² radiance
+  change: R_j += π w f cos V T_o / (n² cosθ_j). Contributions below `shadow_roulette` go through
+  an unbiased roulette, so most negligible shadow rays are never traced.
+  Delta parts (mirror platelets, or a BRDF's coherent part with `coherent="delta"`) have no
+  finite value: a path whose last event was a delta reflection is scored when it exits, into
+  each finite detector aperture (the splat of the deterministic direction), so such BRDFs need
+  a finite `detector_aperture_deg`; for pure mirrors the NEE and histogram columns coincide.
 * Histogram: exiting weight landing inside a detector's cone of half-angle α,
   R_j += π w_exit / (Ω cosθ_air), Ω = 2π(1 − cos α). Both estimate the cone-averaged radiance.
 * Standard errors by batch means over groups of lanes; L* errors by the delta method.
@@ -44,9 +46,13 @@ Estimators (reflectance factor R = π L / E, brief §3).
 
 Wavefront design. A fixed pool of lanes advances in jit-compiled chunks of `steps_per_call`
 steps; a step moves every ray by one event or by at most `cells_per_step` grid cells (3-D DDA,
-periodic in x, y). A lane whose ray has ended is refilled at the next step with the next ray id
-(prefix sum over the dead lanes), so lanes stay busy until the pool drains. Shapes are static: no
-recompilation between calls. Each ray draws its random numbers from a counter-based hash of
+periodic in x, y; slab tests written per component over per-column gathers, the hot loop). A
+lane whose ray has ended is refilled at the next step with the next ray id (prefix sum over the
+dead lanes), so lanes stay busy until the pool drains. Shadow rays are deferred by one step:
+the active ones of all lanes are compacted into a buffer and traced together (any-hit, with a
+cell budget that always reaches the top), so their cost follows the number of useful shadow
+rays, not lanes × detectors. Shapes are static and padded to buckets, and the grid dimensions
+are traced values: no recompilation between calls or between similar arrays. Each ray draws its random numbers from a counter-based hash of
 (seed, ray id, step) (an integer finaliser, far cheaper to compile and run than threefry per
 lane), so the result depends on the seed only, not on the schedule or the device count.
 The lanes are split over all local devices with `shard_map`.
@@ -54,7 +60,6 @@ The lanes are split over all local devices with `shard_map`.
 
 from __future__ import annotations
 
-import math
 import time
 
 import equinox as eqx

@@ -71,6 +71,11 @@ def test_cli_design_and_fit(capsys):
     assert rc == 0
     assert set(out) >= {"params", "stderr", "posterior", "L_star_fit", "seconds"}
     assert set(out["params"]) == {"shape", "scale", "diffuse"} and out["posterior"] is None
+    rc = main(["fit", "--sample", "silver2", "--forward", "analytic-mirror", "--free", "shape,scale,diffuse", "--starts", "3",
+               "--posterior", "--walkers", "8", "--max-steps", "60", "--min-ess", "0", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and set(out["posterior"]) >= {"mean", "q05", "q95", "tau_int"}
+    assert set(out["posterior"]["mean"]) >= {"shape", "scale", "diffuse", "discrepancy", "mean_tilt"}
 
 
 def test_cli_errors_are_one_line(capsys):

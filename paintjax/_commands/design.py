@@ -36,7 +36,8 @@ def compute(args):
     if args.starts < 1:
         raise ValueError(f"--starts must be >= 1, got {args.starts}")
     forward = make_forward(args.forward, free, fixed, progress=not args.json)
-    free = tuple(n for n in free if n in forward.parameter_names)
+    if args.free is None:  # defaults adapt to the model; explicit --free is taken as given
+        free = tuple(n for n in free if n in forward.parameter_names)
     return design_to_target(forward, target, weights=weights, free=free,
                             fixed={k: v for k, v in fixed.items() if k in forward.parameter_names},
                             tolerance=args.tolerance, n_starts=args.starts, seed=args.seed)

@@ -105,8 +105,11 @@ def compute(args) -> dict:
     free = parse_free(args.free, [n for n in DEFAULT_FREE if n not in fixed])
     if args.starts < 1:
         raise ValueError(f"--starts must be >= 1, got {args.starts}")
+    if args.max_steps < 1:
+        raise ValueError(f"--max-steps must be >= 1, got {args.max_steps}")
     forward = make_forward(args.forward, free, fixed, progress=not args.no_progress and not args.json)
-    lsq_free = tuple(n for n in free if n in forward.parameter_names or n == "discrepancy")
+    # Defaults adapt to the model (a mirror model has no σ, τ); explicit --free is taken as given.
+    lsq_free = free if args.free is not None else tuple(n for n in free if n in forward.parameter_names or n == "discrepancy")
     fr = fit_least_squares(forward, measured, free=lsq_free, fixed={k: v for k, v in fixed.items() if k in forward.parameter_names},
                            n_starts=args.starts, seed=args.seed)
     out = {
@@ -132,7 +135,7 @@ def compute(args) -> dict:
         if "discrepancy" not in post_fixed:
             post_free = post_free + ("discrepancy",)
         pr = sample_posterior(forward, measured, free=post_free, fixed=post_fixed, walkers=args.walkers, max_steps=args.max_steps,
-                              min_ess=args.min_ess, init=fr, seed=args.seed, backend_path=args.chain,
+                              min_steps=min(500, args.max_steps), check_every=min(250, args.max_steps), min_ess=args.min_ess, init=fr, seed=args.seed, backend_path=args.chain,
                               progress=not args.no_progress and not args.json)
         d = pr.to_dict()
         out["posterior"] = {k: d[k] for k in ("mean", "q05", "q50", "q95", "tau_int", "n_eff", "steps", "converged", "acceptance",

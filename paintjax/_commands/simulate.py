@@ -9,6 +9,7 @@ from importlib import resources
 import numpy as np
 
 from ._common import add_json_argument, print_json
+from .fit import enable_compilation_cache  # noqa: F401  (shared persistent XLA cache, .paintjax_cache/jax)
 
 BRDFS = ("wave", "mirror", "kirchhoff")
 #: Primer albedo used when none is given: a mid-grey automotive primer (assumption; the basecoat
@@ -177,6 +178,7 @@ _JSON_KEYS = ("aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "ene
 
 
 def run(args) -> int:
+    enable_compilation_cache()
     r = simulate(
         args.sample, shape=args.shape, scale=args.scale, sigma=args.sigma, tau=args.tau, pvc=args.pvc,
         thickness=args.thickness, brdf=args.brdf, reflectance=args.reflectance, primer_albedo=args.primer_albedo,

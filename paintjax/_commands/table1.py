@@ -12,7 +12,7 @@ import time
 import numpy as np
 
 from ._common import add_json_argument, add_output_argument, print_json
-from .simulate import DEFAULT_TARGET_SE, MIRROR_APERTURE_DEG
+from .simulate import DEFAULT_TARGET_SE, MIRROR_APERTURE_DEG, enable_compilation_cache
 
 SAMPLES = ("silver1", "silver2")
 
@@ -24,6 +24,11 @@ def register(sub) -> None:
         description="Five-angle lightness of both reference samples from their measured microstructure: "
         "measured, hybrid ray-wave model, mirror platelets through the same tracer, analytic single scatter.",
     )
+    add_arguments(p)
+
+
+def add_arguments(p) -> None:
+    """The options of table1 (shared with `paintjax demo`, which runs the same job)."""
     p.add_argument("--target-se", type=float, default=DEFAULT_TARGET_SE,
                    help=f"L* standard error to reach at every angle for the hybrid column (default {DEFAULT_TARGET_SE})")
     p.add_argument("--max-rays", type=int, default=327680,
@@ -132,6 +137,7 @@ def _plot(result: dict, folder) -> str:
 def run(args) -> int:
     from .._io import atomic_write_json
 
+    enable_compilation_cache()
     t0 = time.perf_counter()
     r = compute(args.target_se, args.mirror_rays, args.seed, args.max_rays)
     r["seconds"] = time.perf_counter() - t0
