@@ -12,6 +12,7 @@ import abc
 from typing import ClassVar
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, PRNGKeyArray
@@ -71,7 +72,8 @@ class MirrorBRDF(AbstractPlateletBRDF):
     def __init__(self, *, wavelength_um: float = 0.55, n_binder: float = 1.5, metal_index=None, reflectance=None):
         _check_reflectance(reflectance)
         if metal_index is None:
-            metal_index = complex(np.asarray(aluminium_index(wavelength_um)))
+            with jax.ensure_compile_time_eval():  # a constant, also when built inside a jit trace
+                metal_index = complex(np.asarray(aluminium_index(wavelength_um)))
         self.metal_index = complex(metal_index)
         self.n_binder = float(n_binder)
         self.reflectance = None if reflectance is None else float(reflectance)

@@ -17,6 +17,7 @@ With exit occlusion the model is reciprocal. The platelet BRDF is pluggable: any
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -60,6 +61,7 @@ def _denominator(tilt: GammaTilt, wi, wo, exit_occlusion: bool):
     return tilt.projected_area(ci) * co
 
 
+@eqx.filter_jit
 def single_scatter_brdf(
     wi: Float[Array, "... 3"],
     wo: Float[Array, "... 3"],
@@ -108,6 +110,7 @@ def single_scatter_brdf(
     return jnp.sum(integrand * weight, axis=-1) / denom
 
 
+@eqx.filter_jit
 def microfacet_reflectance_factor(
     geometry: Geometry,
     tilt: GammaTilt,
