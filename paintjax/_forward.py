@@ -322,35 +322,6 @@ def rough_platelets(sigma, tau, *, lobe: str = "beckmann", n_binder: float = 1.5
     )
 
 
-@functools.lru_cache(maxsize=16)
-def _leggauss(n: int):
-    return np.polynomial.legendre.leggauss(n)
-
-
-class _CachedNodesGammaTilt(GammaTilt):
-    """`GammaTilt` whose `projected_area` reuses cached Gauss–Legendre nodes (same formula).
-
-    `GammaTilt.projected_area` recomputes 1024 nodes (a 1024² eigenproblem, ~0.5 s) at every
-    trace; the analytic forward traces it four times, which dominated its compile time.
-    """
-
-    def projected_area(self, cos_theta, nodes: int = 1024):
-        from ._tilt import MAX_TILT_DEG
-
-        x, w = _leggauss(nodes)
-        t_deg = 0.5 * (x + 1.0) * MAX_TILT_DEG
-        wt = 0.5 * w * MAX_TILT_DEG * self.pdf_deg(t_deg)
-        t = np.deg2rad(t_deg)
-        ct = jnp.asarray(cos_theta)[..., None]
-        st = jnp.sqrt(jnp.clip(1.0 - ct**2, 0.0, 1.0))
-        a = jnp.cos(t) * jnp.abs(ct)
-        b = jnp.sin(t) * st
-        ratio = jnp.clip(a / jnp.maximum(b, 1e-300), 0.0, 1.0)
-        crossing = (2.0 / jnp.pi) * (jnp.sqrt(jnp.clip(b**2 - a**2, 0.0)) + a * jnp.arcsin(ratio))
-        mean_abs = jnp.where(a >= b, a, crossing)
-        return jnp.sum(wt * mean_abs, axis=-1)
-
-
 # ------------------------------------------------------------------------------------------
 # Analytic forward
 # ------------------------------------------------------------------------------------------
@@ -419,7 +390,7 @@ class AnalyticForward(ForwardModel):
     def _one(self, theta):
         from ._microfacet import microfacet_reflectance_factor, single_scatter_brdf
 
-        tilt = _CachedNodesGammaTilt(theta[0], theta[1])
+        tilt = GammaTilt(theta[0], theta[1])
         if self.rough:
             coherent, lobe = rough_platelets(
                 theta[2], theta[3], lobe=self.lobe, n_binder=self.n, wavelength_um=self.wavelength_um, metal_index=self.metal_index
