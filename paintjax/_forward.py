@@ -26,7 +26,6 @@ likelihood adds (zero for direct models, the held-out error for emulators). Impl
 from __future__ import annotations
 
 import abc
-import functools
 import hashlib
 import json
 import math
