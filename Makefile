@@ -26,4 +26,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
 
 clean:
-	rm -rf $(VENV) .paintjax_cache
+	rm -rf $(VENV)

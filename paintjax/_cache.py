@@ -34,6 +34,15 @@ def default_cache_dir() -> Path:
     return Path(env).expanduser() if env else Path.home() / ".cache" / "paintjax"
 
 
+def enable_compilation_cache() -> None:
+    """Persist XLA compilations under `default_cache_dir()/jax`, so repeat CLI runs skip most
+    compilation (an optimisation only: JAX falls back to compiling when the cache is unusable)."""
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", str(default_cache_dir() / "jax"))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
 def _canonical(obj):
     if isinstance(obj, dict):
         return {str(k): _canonical(v) for k, v in sorted(obj.items(), key=lambda kv: str(kv[0]))}

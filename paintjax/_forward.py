@@ -33,6 +33,7 @@ import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Literal
 
 import equinox as eqx
 import jax
@@ -41,6 +42,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF
+from ._cache import default_cache_dir
 from ._instrument import STANDARD_ASPECULAR, Geometry, ma98_geometry, refract_into_coat
 from ._io import atomic_savez
 from ._lightness import reflectance_factor_to_lightness
@@ -615,7 +617,7 @@ def build_emulator(
     n_train: int = 256,
     n_test: int = 64,
     seed: int = 0,
-    cache_dir: str | os.PathLike | None = ".paintjax_cache/emulators",
+    cache_dir: str | os.PathLike | None | Literal["default"] = "default",
     batch: int = 64,
     aspecular_deg=None,
     progress: bool = False,
@@ -637,7 +639,7 @@ def build_emulator(
             plain callables).
         n_train, n_test: design sizes (n_train ≥ 8·len(spec) recommended).
         seed: seed of both designs.
-        cache_dir: cache folder, or None for no cache.
+        cache_dir: cache folder; "default" is `default_cache_dir()/emulators`; None for no cache.
         batch: evaluations per call of `fn`.
         aspecular_deg: output angles (defaults to those of `fn` or the five standard ones).
         progress: show a progress bar over the design.
@@ -658,6 +660,8 @@ def build_emulator(
         raise ValueError("source must identify fn (a string that changes with its behaviour) for the cache key")
     angles = tuple(float(a) for a in (STANDARD_ASPECULAR if aspecular_deg is None else aspecular_deg))
     key = emulator_key(source, spec, n_train, n_test, seed)
+    if cache_dir == "default":
+        cache_dir = default_cache_dir() / "emulators"
     path = None if cache_dir is None else Path(cache_dir) / f"emulator-{key}.npz"
     if path is not None and path.exists():
         with np.load(path) as d:
@@ -729,7 +733,7 @@ def _analytic_mirror(free, fixed, bounds, **kw):
     return AnalyticForward(rough=False)
 
 
-def _analytic_emulator(free, fixed, bounds, *, cache_dir=".paintjax_cache/emulators", n_train: int = 256, n_test: int = 64, seed: int = 0, progress: bool = False, **kw):
+def _analytic_emulator(free, fixed, bounds, *, cache_dir="default", n_train: int = 256, n_test: int = 64, seed: int = 0, progress: bool = False, **kw):
     from ._parameters import make_spec
 
     base = AnalyticForward()

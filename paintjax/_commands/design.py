@@ -5,7 +5,8 @@ from __future__ import annotations
 import sys
 
 from ._common import add_json_argument, print_json
-from .fit import add_model_arguments, enable_compilation_cache, parse_fixed, parse_floats, parse_free
+from .._cache import enable_compilation_cache
+from .fit import add_model_arguments, parse_fixed, parse_floats, parse_free
 
 DEFAULT_FREE = ("shape", "scale", "sigma", "tau")
 

@@ -7,21 +7,11 @@ import time
 
 import numpy as np
 
+from .._cache import enable_compilation_cache
 from ._common import add_json_argument, print_json
 
 #: Default free parameters of least squares for each built-in forward model family.
 DEFAULT_FREE = ("shape", "scale", "sigma", "tau", "diffuse")
-
-
-def enable_compilation_cache() -> None:
-    """Persistent XLA cache under .paintjax_cache/jax (repeat CLI runs skip most compilation)."""
-    import jax
-
-    try:
-        jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-    except Exception:  # pragma: no cover - cache is an optimisation only
-        pass
 
 
 def parse_floats(text: str, name: str, count: int | None = None) -> list[float]:

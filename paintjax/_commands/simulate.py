@@ -9,7 +9,7 @@ from importlib import resources
 import numpy as np
 
 from ._common import add_json_argument, print_json
-from .fit import enable_compilation_cache  # noqa: F401  (shared persistent XLA cache, .paintjax_cache/jax)
+from .._cache import enable_compilation_cache
 
 BRDFS = ("wave", "mirror", "kirchhoff")
 #: Primer albedo used when none is given: a mid-grey automotive primer (assumption; the basecoat

@@ -12,7 +12,8 @@ import time
 import numpy as np
 
 from ._common import add_json_argument, add_output_argument, print_json
-from .simulate import DEFAULT_TARGET_SE, MIRROR_APERTURE_DEG, enable_compilation_cache
+from .._cache import enable_compilation_cache
+from .simulate import DEFAULT_TARGET_SE, MIRROR_APERTURE_DEG
 
 SAMPLES = ("silver1", "silver2")
 
