@@ -254,19 +254,10 @@ def kirchhoff_geometry(wi, wo, k, sigma_um, tau_um):
     return cos_chi, c, X, q2tau2, pre
 
 
-class BeckmannBRDF(AbstractLobeBRDF):
-    """Analytic isotropic Kirchhoff (Beckmann–Spizzichino) BRDF of a Gaussian metal surface.
-
-    Arguments:
-        sigma_um: rms height σ [µm].
-        tau_um: correlation length τ [µm] (1/e of the Gaussian autocorrelation).
-        wavelength_um: vacuum wavelength λ0 [µm].
-        n_medium: real index of the medium above the surface (binder 1.5, air 1.0).
-        metal_index: complex metal index (default: aluminium at λ0).
-        coherent: "lobe" (default, diffraction lobe of a platelet of width `platelet_width_um`) or "delta".
-        platelet_width_um: platelet width D that sets the coherent lobe width.
-        coherent_width: explicit β standard deviation of the coherent lobe (overrides D).
-    """
+class AbstractGaussianMetalBRDF(AbstractLobeBRDF):
+    """Lobe BRDF of a metal with Gaussian height statistics (σ, τ): the settings, validation,
+    Fresnel factor and Gaussian-slope proposal that the Kirchhoff and He–Torrance models share.
+    Subclasses supply `incoherent`, `coherent_reflectance` and `coherent_share`."""
 
     sigma_um: float = eqx.field(static=True)
     tau_um: float = eqx.field(static=True)
@@ -312,6 +303,27 @@ class BeckmannBRDF(AbstractLobeBRDF):
     def fresnel(self, cos_chi):
         return fresnel_conductor(cos_chi, self.n_medium, self.metal_index)[2]
 
+    def incoherent_albedo(self, cos_i):
+        return self.quadrature_albedo(cos_i)
+
+    def proposal(self, cos_i):
+        return gaussian_proposal(cos_i, self.k, self.sigma_um, self.tau_um)
+
+
+class BeckmannBRDF(AbstractGaussianMetalBRDF):
+    """Analytic isotropic Kirchhoff (Beckmann–Spizzichino) BRDF of a Gaussian metal surface.
+
+    Arguments:
+        sigma_um: rms height σ [µm].
+        tau_um: correlation length τ [µm] (1/e of the Gaussian autocorrelation).
+        wavelength_um: vacuum wavelength λ0 [µm].
+        n_medium: real index of the medium above the surface (binder 1.5, air 1.0).
+        metal_index: complex metal index (default: aluminium at λ0).
+        coherent: "lobe" (default, diffraction lobe of a platelet of width `platelet_width_um`) or "delta".
+        platelet_width_um: platelet width D that sets the coherent lobe width.
+        coherent_width: explicit β standard deviation of the coherent lobe (overrides D).
+    """
+
     def incoherent(self, wi, wo):
         cos_chi, c, X, q2tau2, pre = kirchhoff_geometry(wi, wo, self.k, self.sigma_um, self.tau_um)
         f = self.fresnel(cos_chi) * pre * kirchhoff_series(X, q2tau2, self.num_terms)
@@ -320,12 +332,6 @@ class BeckmannBRDF(AbstractLobeBRDF):
     def coherent_reflectance(self, cos_i):
         cos_i = jnp.asarray(cos_i)
         return self.fresnel(cos_i) * jnp.exp(-((2.0 * self.k * self.sigma_um * cos_i) ** 2))
-
-    def incoherent_albedo(self, cos_i):
-        return self.quadrature_albedo(cos_i)
-
-    def proposal(self, cos_i):
-        return gaussian_proposal(cos_i, self.k, self.sigma_um, self.tau_um)
 
     def coherent_share(self, cos_i):
         return jnp.exp(-((2.0 * self.k * self.sigma_um * jnp.asarray(cos_i)) ** 2))

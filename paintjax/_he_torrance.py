@@ -18,25 +18,16 @@ multiplied by S; both are reciprocal. Unpolarised (|F|² = mean of the s and p r
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import erfc
 
 from ._beckmann import (
-    DEFAULT_PLATELET_WIDTH_UM,
-    AbstractLobeBRDF,
-    check_coherent,
-    check_positive,
-    coherent_lobe_width,
-    gaussian_proposal,
+    AbstractGaussianMetalBRDF,
     kirchhoff_geometry,
     kirchhoff_series,
-    metal_index_or_aluminium,
-    series_terms,
 )
-from ._optics import fresnel_conductor
 
 
 def _a(mu, sigma_um, tau_um):
@@ -72,7 +63,7 @@ def effective_roughness(mu_i, mu_o, sigma_um, tau_um, iterations: int = 60):
     return sigma_um / jnp.sqrt(1.0 + (z0 / sigma_um) ** 2)
 
 
-class HeTorranceBRDF(AbstractLobeBRDF):
+class HeTorranceBRDF(AbstractGaussianMetalBRDF):
     """He–Torrance (1991) BRDF of a Gaussian metal surface: specular + directional diffuse.
 
     Arguments:
@@ -82,49 +73,6 @@ class HeTorranceBRDF(AbstractLobeBRDF):
         coherent: the specular term as "lobe" (default, platelet diffraction lobe) or "delta".
         platelet_width_um, coherent_width: width of the coherent lobe (see `paintjax._beckmann`).
     """
-
-    sigma_um: float = eqx.field(static=True)
-    tau_um: float = eqx.field(static=True)
-    wavelength_um: float = eqx.field(static=True)
-    n_medium: float = eqx.field(static=True)
-    metal_index: complex = eqx.field(static=True)
-    coherent: str = eqx.field(static=True)
-    coherent_width: float = eqx.field(static=True)
-    num_terms: int = eqx.field(static=True)
-
-    def __init__(
-        self,
-        sigma_um: float,
-        tau_um: float,
-        *,
-        wavelength_um: float = 0.5,
-        n_medium: float = 1.5,
-        metal_index=None,
-        coherent: str = "lobe",
-        platelet_width_um: float = DEFAULT_PLATELET_WIDTH_UM,
-        coherent_width: float | None = None,
-    ):
-        check_positive("sigma_um", sigma_um, 10.0)
-        check_positive("tau_um", tau_um, 1e3)
-        check_positive("wavelength_um", wavelength_um, 20.0)
-        check_positive("n_medium", n_medium, 5.0)
-        check_coherent(coherent)
-        self.sigma_um, self.tau_um = float(sigma_um), float(tau_um)
-        self.wavelength_um, self.n_medium = float(wavelength_um), float(n_medium)
-        self.metal_index = metal_index_or_aluminium(metal_index, wavelength_um)
-        self.coherent = coherent
-        if coherent_width is None:
-            coherent_width = coherent_lobe_width(wavelength_um, n_medium, platelet_width_um)
-        check_positive("coherent_width", coherent_width, 1.0)
-        self.coherent_width = float(coherent_width)
-        self.num_terms = series_terms(2.0 * self.k * self.sigma_um)
-
-    @property
-    def k(self) -> float:
-        return 2.0 * np.pi * self.n_medium / self.wavelength_um
-
-    def fresnel(self, cos_chi):
-        return fresnel_conductor(cos_chi, self.n_medium, self.metal_index)[2]
 
     def incoherent(self, wi, wo):
         ci, co = wi[..., 2], wo[..., 2]
@@ -142,12 +90,6 @@ class HeTorranceBRDF(AbstractLobeBRDF):
         s_eff = effective_roughness(mu, mu, self.sigma_um, self.tau_um)
         g = (2.0 * self.k * s_eff * mu) ** 2
         return self.fresnel(mu) * jnp.exp(-g) * shadowing(mu, self.sigma_um, self.tau_um) ** 2
-
-    def incoherent_albedo(self, cos_i):
-        return self.quadrature_albedo(cos_i)
-
-    def proposal(self, cos_i):
-        return gaussian_proposal(cos_i, self.k, self.sigma_um, self.tau_um)
 
     def coherent_share(self, cos_i):
         mu = jnp.clip(jnp.asarray(cos_i), 1e-12, 1.0)

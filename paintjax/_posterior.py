@@ -23,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import tempfile
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -34,7 +33,7 @@ import numpy as np
 
 from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, check_measured, fit_least_squares
 from ._forward import ForwardModel
-from ._io import atomic_savefig
+from ._io import atomic_path, atomic_savefig
 
 
 @dataclasses.dataclass
@@ -426,18 +425,9 @@ def _result(sampler, lp: LogPosterior, converged: bool, t0: float, backend_path,
 
 def save_netcdf(idata, path: str | os.PathLike) -> Path:
     """Write ArviZ InferenceData to NetCDF atomically (temporary file in the same folder + rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        idata.to_netcdf(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    with atomic_path(path) as tmp:
+        idata.to_netcdf(str(tmp))
+    return Path(path)
 
 
 def corner_plot(result: PosteriorResult, *, names: Sequence[str] | None = None, reference: Mapping[str, float] | None = None,
