@@ -33,7 +33,7 @@ import os
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import equinox as eqx
 import jax
@@ -223,21 +223,17 @@ def windowed_kirchhoff_series(X, q2tau2, window: int = SERIES_WINDOW):
     return jnp.sum(jnp.exp(log_t), -1)
 
 
-class KirchhoffLobeBRDF(AbstractPlateletBRDF):
-    """Incoherent Kirchhoff (Beckmann–Spizzichino) lobe of a Gaussian aluminium platelet with
-    *traced* σ, τ (µm), so it can be vmapped over walkers and differentiated.
-
-    Same formula as `_beckmann.BeckmannBRDF.incoherent` (its `kirchhoff_geometry`), with a
-    fixed-size window of the series; its coherent part is `CoherentMirrorBRDF` (delta).
-    Evaluation only (the analytic model integrates it by quadrature).
-    """
+class AbstractTracedLobeBRDF(AbstractPlateletBRDF):
+    """Incoherent lobe of a rough aluminium platelet whose σ, τ (µm) are traced arrays, so the
+    analytic forward can vmap over walkers and differentiate. Evaluation only: the analytic
+    model integrates it by quadrature (`_beckmann.BeckmannBRDF` samples)."""
 
     sigma: Float[Array, ""]
     tau: Float[Array, ""]
     metal_index: complex = eqx.field(static=True)
     n_binder: float = eqx.field(static=True)
     wavelength_um: float = eqx.field(static=True)
-    is_delta = False
+    is_delta: ClassVar[bool] = False
 
     def __init__(self, sigma, tau, *, n_binder: float = 1.5, wavelength_um: float = 0.55, metal_index=None):
         self.sigma = jnp.asarray(sigma, dtype=jnp.result_type(float))
@@ -245,6 +241,22 @@ class KirchhoffLobeBRDF(AbstractPlateletBRDF):
         self.n_binder = float(n_binder)
         self.wavelength_um = float(wavelength_um)
         self.metal_index = _metal_index(wavelength_um) if metal_index is None else complex(metal_index)
+
+    def sample(self, key, wi):  # not needed by the analytic model
+        raise NotImplementedError(f"{type(self).__name__} is evaluated by quadrature only; use _beckmann.BeckmannBRDF to sample")
+
+    def albedo(self, cos_i):
+        raise NotImplementedError(f"{type(self).__name__} has no tabulated albedo; use _beckmann.BeckmannBRDF")
+
+
+class KirchhoffLobeBRDF(AbstractTracedLobeBRDF):
+    """Incoherent Kirchhoff (Beckmann–Spizzichino) lobe of a Gaussian aluminium platelet with
+    *traced* σ, τ (µm), so it can be vmapped over walkers and differentiated.
+
+    Same formula as `_beckmann.BeckmannBRDF.incoherent` (its `kirchhoff_geometry`), with a
+    fixed-size window of the series; its coherent part is `CoherentMirrorBRDF` (delta).
+    Evaluation only (the analytic model integrates it by quadrature).
+    """
 
     def evaluate(self, wi, wo):
         from ._beckmann import kirchhoff_geometry
@@ -254,14 +266,8 @@ class KirchhoffLobeBRDF(AbstractPlateletBRDF):
         f = fresnel_conductor(cos_chi, self.n_binder, self.metal_index)[2] * pre * windowed_kirchhoff_series(X, q2tau2)
         return jnp.where((wi[..., 2] > 0) & (wo[..., 2] > 0), f, 0.0)
 
-    def sample(self, key, wi):  # not needed by the analytic model
-        raise NotImplementedError("KirchhoffLobeBRDF is evaluated by quadrature only; use _beckmann.BeckmannBRDF to sample")
 
-    def albedo(self, cos_i):
-        raise NotImplementedError("KirchhoffLobeBRDF has no tabulated albedo; use _beckmann.BeckmannBRDF")
-
-
-class BeckmannLobeBRDF(AbstractPlateletBRDF):
+class BeckmannLobeBRDF(AbstractTracedLobeBRDF):
     """Geometric-optics (stationary-phase) limit of the Kirchhoff lobe with traced σ, τ (µm):
 
     f = (1 − e^{−X}) R(χ) D(h) / (4 cosθ_i cosθ_o),  X = (kσ(cosθ_i + cosθ_o))²,
@@ -270,20 +276,6 @@ class BeckmannLobeBRDF(AbstractPlateletBRDF):
     C(r) = σ² exp(−r²/τ²)), no shadowing — the limit quoted in `_beckmann`. Fast (no series); it
     drops the diffraction broadening (kτ ≈ 12 for the reference platelets, so that is a few %).
     """
-
-    sigma: Float[Array, ""]
-    tau: Float[Array, ""]
-    metal_index: complex = eqx.field(static=True)
-    n_binder: float = eqx.field(static=True)
-    wavelength_um: float = eqx.field(static=True)
-    is_delta = False
-
-    def __init__(self, sigma, tau, *, n_binder: float = 1.5, wavelength_um: float = 0.55, metal_index=None):
-        self.sigma = jnp.asarray(sigma, dtype=jnp.result_type(float))
-        self.tau = jnp.asarray(tau, dtype=jnp.result_type(float))
-        self.n_binder = float(n_binder)
-        self.wavelength_um = float(wavelength_um)
-        self.metal_index = _metal_index(wavelength_um) if metal_index is None else complex(metal_index)
 
     def evaluate(self, wi, wo):
         ci, co = wi[..., 2], wo[..., 2]
@@ -299,12 +291,6 @@ class BeckmannLobeBRDF(AbstractPlateletBRDF):
         incoherent = -jnp.expm1(-((k * self.sigma * (jnp.clip(ci, 0.0, 1.0) + jnp.clip(co, 0.0, 1.0))) ** 2))
         f = incoherent * R * D / (4.0 * jnp.where(ok, ci * co, 1.0))
         return jnp.where(ok, f, 0.0)
-
-    def sample(self, key, wi):  # not needed by the analytic model
-        raise NotImplementedError("BeckmannLobeBRDF is evaluated by quadrature only; use _beckmann.BeckmannBRDF to sample")
-
-    def albedo(self, cos_i):
-        raise NotImplementedError("BeckmannLobeBRDF has no tabulated albedo; use _beckmann.BeckmannBRDF")
 
 
 def rough_platelets(sigma, tau, *, lobe: str = "beckmann", n_binder: float = 1.5, wavelength_um: float = 0.55, metal_index=None) -> tuple[AbstractPlateletBRDF, ...]:
