@@ -49,7 +49,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from ._grid import UniformGrid, _ColumnCells, build_grid, candidate_pairs, platelet_boxes
 from ._overlap import aabb_half_extents, midplane_overlap, obb_overlap, periodic_overlap
-from ._sizes import SizeDistribution, as_size_distribution
+from ._sizes import SizeDistribution, as_size_distribution, positive_finite
 from ._tilt import _INV_CDF_POINTS, MAX_TILT_DEG, GammaTilt
 
 #: Largest accepted PVC. Random sequential addition of thin tilted platelets jams far below
@@ -150,16 +150,6 @@ class GenerationLog:
     n_failed: int  # platelets left overlapping after max_attempts
     n_orientation_redrawn: int  # platelets given a new orientation to fit in the film
     seconds: float
-
-
-def _check_positive(name: str, value) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be a positive finite number [µm], got {value!r}") from err
-    if not math.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be a positive finite number [µm], got {value!r}")
-    return v
 
 
 def numpy_rng(key_or_seed) -> np.random.Generator:
@@ -283,8 +273,8 @@ def generate_platelet_array(
         raise ValueError(f"pvc must be a number in (0, {MAX_PVC}], got {pvc!r}") from err
     if not (math.isfinite(pvc_f) and 0 < pvc_f <= MAX_PVC):
         raise ValueError(f"pvc must lie in (0, {MAX_PVC}] (volume fraction, not percent), got {pvc!r}")
-    t = _check_positive("thickness", thickness)
-    h_b = _check_positive("basecoat_thickness", basecoat_thickness)
+    t = positive_finite("thickness", thickness, "µm")
+    h_b = positive_finite("basecoat_thickness", basecoat_thickness, "µm")
     if h_b <= t:
         raise ValueError(f"basecoat_thickness ({h_b} µm) must exceed the platelet thickness ({t} µm)")
     w_max = float(sizes.max_width)
@@ -295,7 +285,7 @@ def generate_platelet_array(
         Ls = (tile, tile) if np.ndim(tile) == 0 else tuple(tile)
         if len(Ls) != 2:
             raise ValueError(f"tile must be a side or (Lx, Ly) [µm], got {tile!r}")
-        L = tuple(_check_positive("tile", v) for v in Ls)
+        L = tuple(positive_finite("tile", v, "µm") for v in Ls)
     if min(L) < min_tile:
         raise ValueError(
             f"tile {L} µm is smaller than the largest platelet allows: each side must be ≥ √2·max_width + "

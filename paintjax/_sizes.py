@@ -37,13 +37,15 @@ _Z90 = 1.2815515655446004  # standard normal 90 % quantile
 CDF_END_TOLERANCE = 0.02
 
 
-def _positive_finite(name: str, value) -> float:
+def positive_finite(name: str, value, unit: str = "") -> float:
+    """`value` as a float, or a ValueError naming `name` unless it is finite and > 0."""
+    what = f"{name} must be a positive finite number{f' [{unit}]' if unit else ''}, got {value!r}"
     try:
         v = float(value)
     except (TypeError, ValueError) as err:
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}") from err
+        raise ValueError(what) from err
     if not math.isfinite(v) or v <= 0:
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+        raise ValueError(what)
     return v
 
 
@@ -98,12 +100,12 @@ class LogNormalSizes(SizeDistribution):
     truncation: float = eqx.field(static=True)
 
     def __init__(self, d50: float = 16.0, sigma: float | None = None, truncation: float = 3.0):
-        d50 = _positive_finite("d50", d50)
+        d50 = positive_finite("d50", d50)
         sigma = math.log(30.0 / 8.0) / (2 * _Z90) if sigma is None else sigma
-        sigma = _positive_finite("sigma", sigma)
+        sigma = positive_finite("sigma", sigma)
         if sigma > 3.0:
             raise ValueError(f"sigma (of ln width) must lie in (0, 3], got {sigma!r}")
-        truncation = _positive_finite("truncation", truncation)
+        truncation = positive_finite("truncation", truncation)
         if not 1.0 <= truncation <= 8.0:
             raise ValueError(f"truncation must lie in [1, 8] standard deviations, got {truncation!r}")
         self.d50, self.sigma, self.truncation = d50, sigma, truncation
@@ -117,7 +119,7 @@ class LogNormalSizes(SizeDistribution):
         Raises:
             ValueError: unless 0 < d10 < d50 < d90.
         """
-        d10, d50, d90 = (_positive_finite(n, v) for n, v in (("d10", d10), ("d50", d50), ("d90", d90)))
+        d10, d50, d90 = (positive_finite(n, v) for n, v in (("d10", d10), ("d50", d50), ("d90", d90)))
         if not d10 < d50 < d90:
             raise ValueError(f"size quantiles must satisfy d10 < d50 < d90, got d10={d10}, d50={d50}, d90={d90}")
         return cls(d50, math.log(d90 / d10) / (2 * _Z90), truncation)
@@ -246,8 +248,8 @@ class PolynomialCDFSizes(_TableSizes):
         c = np.asarray(coefficients, dtype=float).ravel()
         if c.size < 2 or np.any(~np.isfinite(c)):
             raise ValueError(f"coefficients must be ≥ 2 finite numbers (increasing powers), got {coefficients!r}")
-        lo = _positive_finite("min_width", min_width)
-        hi = _positive_finite("max_width", max_width)
+        lo = positive_finite("min_width", min_width)
+        hi = positive_finite("max_width", max_width)
         if hi <= lo:
             raise ValueError(f"max_width must exceed min_width, got min_width={lo}, max_width={hi}")
         w = np.linspace(lo, hi, _TABLE_POINTS)
