@@ -8,24 +8,44 @@ form (`kirchhoff_lobes`, used to validate the 2-D → 3-D step against `Beckmann
 
 **Model.** The incoherent BRDF is written, in direction cosines β (see `paintjax._beckmann`),
 
-    f_inc(ω_i, ω_o) = a(μ_i) a(μ_o) L(ρ; μ̄) / (μ_i μ_o),   ρ = |β_i + β_o|,  μ̄ = (μ_i + μ_o)/2,
+    f_inc(ω_i, ω_o) = a(μ_i) a(μ_o) G(ρ, c) L(ρ; μ̄) / (μ_i μ_o),   ρ = |β_i + β_o|,  c = μ_i + μ_o = 2μ̄,
 
-an isotropic lobe about the specular point (Harvey–Shack) whose shape depends on the mean cosine
-μ̄ = c/2 (the Kirchhoff q_z): the analytic Kirchhoff BRDF of a Gaussian surface is exactly of this
-form, and the form is reciprocal by construction. L(ρ; μ) = Σ_k C_k(μ) e^{−ρ²/w_k²} on fixed
-widths w_k, tabulated at the source incidences θ_j (μ_j = cosθ_j) and interpolated linearly in μ.
+a shift-invariant lobe L about the specular point (Harvey–Shack surface transfer function) whose
+shape depends on the mean cosine μ̄ = c/2 (the Kirchhoff q_z), times the Kirchhoff geometric
+(obliquity) factor G = (ρ² + c²)²/(4c²) = 4cos⁴χ/c² (Beckmann's F₃² cos²θ_i; `geometric_factor`),
+which is the same function of (ρ, c) in the plane of incidence, (1 + cos(θ_i + θ_s))²/c². The
+analytic Kirchhoff BRDF of a Gaussian surface is exactly of this form (L = R(χ) (kτ)²/(4π) × the
+Beckmann series at X = (kσc)²), and the form is reciprocal by construction.
+L(ρ; μ) = Σ_k C_k(μ) e^{−ρ²/w_k²} on fixed widths w_k, tabulated at the source incidences θ_j
+(μ_j = cosθ_j) and interpolated linearly in μ.
 
-**2-D → 3-D (inverse Abel).** For an isotropic surface the in-plane lobe per unit β,
-p(u) = σ_inc(θ_s)/cosθ_s at u = sinθ_s − sinθ_i, is the projection of the 2-D lobe on the plane
-of incidence. Each in-plane sample (any incidence, cosθ_s > 0.1) is assigned to its mean cosine
-μ̄; the coefficients C_j of node j are the non-negative least-squares fit (relative weighting
-down to 1 % of the peak, hat weights in μ̄) of p μ_i μ_o by the projections √π w_k e^{−u²/w_k²}
-of the basis — the inverse Abel transform, exact term by term (BASEX-style basis expansion).
-`method="rotate"` instead fits the in-plane *cut* e^{−u²/w_k²} (the original study's
-axisymmetric rotation of the 1-D lobe). Basis widths below `min_width` (2/(kτ) for tables built
-by `platelet_table_arrays`: the width of the narrowest, m = 1, term of the Kirchhoff series of a
-Gaussian surface) are not used, so the speckle of a profile average — which the memory effect
-repeats about the specular point of every incidence — is not fitted as structure.
+**2-D → 3-D (inverse Abel).** For an isotropic surface the 1-D surface transfer function at a
+given q_z is the projection of the 2-D one (generalised Harvey–Shack): the in-plane lobe per unit
+β, p(u) = σ_inc(θ_s)/cosθ_s at u = sinθ_s − sinθ_i, divided by the in-plane obliquity
+G(|u|, c)/(μ_i μ_o), is the projection of L(·; μ̄) on the plane of incidence. (Projecting G L
+instead, as tables before version 6 did, ignores that G grows off the plane: 5 % at 40° and
+tens of % near grazing.) Each in-plane sample (any incidence, cosθ_s > 0.1) is assigned to its
+mean cosine μ̄; the coefficients C_j of node j are the non-negative least-squares fit (relative
+weighting down to 1 % of the peak, hat weights in μ̄) of p μ_i μ_o / G by the projections
+√π w_k e^{−u²/w_k²} of the basis — the inverse Abel transform, exact term by term (BASEX-style
+basis expansion). `method="rotate"` instead fits the in-plane *cut* e^{−u²/w_k²} (the original
+study's axisymmetric rotation of the 1-D lobe). Basis widths below `min_width` (2/(kτ) for tables
+built by `platelet_table_arrays`: the width of the narrowest, m = 1, term of the Kirchhoff series
+of a Gaussian surface) are not used, so the speckle of a profile average — which the memory
+effect repeats about the specular point of every incidence — is not fitted as structure.
+
+**Small c: continuation in q_z.** In the plane of incidence a pair with μ_i + μ_o = c reaches
+only |u| ≤ |sinθ_a − sinθ_b| ≤ 1 − √(1 − c²) from the specular point (`in_plane_reach`): when
+both directions are oblique (c ≲ 1, nodes beyond ≈ 60° for platelet roughness) the in-plane data
+see only the middle of the lobe, and the inverse Abel transform of a truncated projection is
+undetermined (it overshot the tails many-fold, and a(μ) compensated by up to 14 %). Nodes whose
+data reach less than `MIN_COVERAGE` = 99 % of their projected lobe, below the last node that does
+(c_ref), take that node's lobe continued to their q_z with the generalised Harvey–Shack transfer
+function (`continue_lobe`): the 2-D Fourier transform of L is g(r) = A e^{−X}(e^{Xγ(r)} − 1),
+X = (kσc)², so γ(r) follows from the reference lobe and L at any c from γ. (kσ)² is estimated
+from the source's coherent fraction R_coh/R = e^{−(2kσμ)²} over the covered incidences (from the q_z
+dependence of the lobe integrals when there is no usable coherent part). Which nodes were
+continued is stored (`continued`, with `lobe_coverage`).
 
 **Reflectance.** a(μ) is solved at build time (symmetric Sinkhorn iteration) so that at every
 tabulated incidence ∫_disk f_inc dβ equals the source's incoherent reflectance; with the
@@ -67,6 +87,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 from scipy.optimize import nnls
+from scipy.special import erf
 from scipy.special import gammaln as np_gammaln
 
 from ._beckmann import (
@@ -87,7 +108,7 @@ DEFAULT_INCIDENCE_DEG = np.concatenate([np.arange(0.0, 88.0, 3.0), [89.0]])
 DEFAULT_NUM_WIDTHS = 36
 _MIN_WIDTH, _MAX_WIDTH = 0.012, 2.5
 #: Bumped when the table construction changes (part of the cache key).
-TABLE_VERSION = 5
+TABLE_VERSION = 6
 #: In-plane points closer to grazing than this cosine are not used by the lobe fit.
 COS_MIN = 0.1
 
@@ -243,6 +264,81 @@ def _hat(mu, mu_nodes, j):
     return np.clip(h, 0.0, 1.0)
 
 
+def geometric_factor(rho2, c, xp=jnp):
+    """Kirchhoff geometric (obliquity) factor G = (ρ² + c²)² / (4c²) = 4cos⁴χ / c² of a direction pair.
+
+    ρ² = |β_i + β_o|², c = cosθ_i + cosθ_o, so ρ² + c² = |ω_i + ω_o|² = 4cos²χ. It is Beckmann's F₃²cos²θ_i
+    in 3-D and reduces to (1 + cos(θ_i + θ_s))² / c² in the plane of incidence (ρ = |u|): the same
+    function of (ρ, c) in 2-D and 3-D. Normalised to 1 at the specular point of normal incidence.
+    """
+    return (rho2 + c**2) ** 2 / xp.maximum(4.0 * c**2, 1e-300)
+
+
+#: Smallest share of a node's projected lobe that its in-plane data must reach (else: continued).
+MIN_COVERAGE = 0.99
+#: Smallest range of c = 2μ̄ over the covered nodes for which (kσ)² is estimated and lobes continued.
+MIN_C_SPAN = 0.2
+
+
+def in_plane_reach(c, cos_min: float = COS_MIN) -> np.ndarray:
+    """Largest distance |u| from the specular point that an in-plane pair with μ_i + μ_o = c
+    (both cosines > cos_min, same side of the normal) reaches: |sinθ_a − sinθ_b| at the ends."""
+    c = np.atleast_1d(np.asarray(c, float))
+    mu_a = np.clip(np.minimum(c - cos_min, 1.0), cos_min, 1.0)
+    mu_b = np.clip(c - mu_a, cos_min, 1.0)
+    return np.where(c > 2 * cos_min, np.abs(np.sqrt(1 - mu_a**2) - np.sqrt(1 - mu_b**2)), 0.0)
+
+
+def _hankel_pair(widths, rho_max: float = 2.2, n_panels: int = 80, n_gl: int = 16):
+    """(r nodes, ρ grid, quadrature kernel K) with L(ρ) = K @ g(r) = ∫ g(r) J0(2πρr) 2πr dr; the basis
+    e^{−ρ²/w²} has g(r) = πw² e^{−π²w²r²}."""
+    from scipy.special import j0
+
+    r_max = 5.0 / (np.pi * widths.min())
+    x, w = np.polynomial.legendre.leggauss(n_gl)
+    edges = np.linspace(0.0, r_max, n_panels + 1)
+    half = 0.5 * np.diff(edges)[:, None]
+    r = ((edges[:-1, None] + half) + half * x).ravel()
+    wr = (half * w).ravel() * 2.0 * np.pi * r
+    rho = np.linspace(0.0, rho_max, 441)
+    return r, rho, j0(2.0 * np.pi * rho[:, None] * r[None, :]) * wr
+
+
+def continue_lobe(coef_ref, widths, X_ref: float, X_new: float, kernel, min_width: float = 0.0):
+    """Radial lobe at another q_z by the generalised Harvey–Shack (Kirchhoff) surface transfer function.
+
+    The lobe's 2-D Fourier transform (an autocovariance-like function of lateral distance r) is
+    g(r) = A e^{−X} (e^{X γ(r)} − 1), X = (kσc)², γ(0) = 1. From the reference lobe (X_ref) take
+    A = g(0)/(1 − e^{−X_ref}) and γ(r) = ln(1 + e^{X_ref} g/A)/X_ref, evaluate g at X_new, transform
+    back and fit the Gaussian basis (relative weights down to 1 % of the peak, non-negative).
+    """
+    r, rho, K = kernel
+    g_ref = np.sum(coef_ref * np.pi * widths**2 * np.exp(-(np.pi**2) * widths**2 * r[:, None] ** 2), -1)
+    A = g_ref[0] / -np.expm1(-X_ref)
+    if not A > 0:
+        return np.zeros_like(coef_ref)
+    gamma = np.log1p(np.maximum(g_ref, 0.0) * np.exp(X_ref) / A) / X_ref
+    L = K @ (A * np.exp(-X_new) * np.expm1(X_new * gamma))
+    wts = 1.0 / (np.maximum(L, 0.0) + 0.01 * max(L.max(), 1e-300))
+    c, _ = fit_radial_lobe(rho, L, wts, widths, "rotate", min_width)
+    return c
+
+
+def _roughness(mu, R_coh, R_inc, integrals):
+    """(kσ)² of the surface from the tabulated incidences given (cosines μ, coherent and incoherent
+    reflectance, lobe integrals ∫L d²ρ): from the coherent fraction R_coh/R = e^{−(2kσμ)²} (least
+    squares in its logarithm over incidences where it lies in [1e-4, 0.9]); without a usable coherent
+    part, from the q_z dependence of the lobe integrals A(1 − e^{−(kσ)²(2μ)²}) (best of a fine grid)."""
+    frac = R_coh / np.maximum(R_coh + R_inc, 1e-300)
+    use = (frac >= 1e-4) & (frac <= 0.9)
+    if np.any(use):
+        return float(np.sum(mu[use] ** 2 * -np.log(frac[use])) / (4.0 * np.sum(mu[use] ** 4)))
+    grid = np.geomspace(1e-3, 30.0, 1201)
+    shape = -np.expm1(-grid[:, None] * (2.0 * mu[None, :]) ** 2)
+    A = shape @ integrals / np.sum(shape**2, -1)
+    return float(grid[np.argmin(np.sum((A[:, None] * shape - integrals) ** 2, -1))])
+
+
 def _interp_index(mu, mu_nodes_desc, xp=jnp):
     """(j0, t): μ between tabulated nodes j0, j0+1 (nodes in ascending incidence, i.e. descending μ)."""
     J = mu_nodes_desc.shape[0]
@@ -295,7 +391,8 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
     pmax = np.max(np.where(cs > COS_MIN, P, 0.0), axis=1, keepdims=True)
     pmax = np.where(pmax > 0, pmax, 1.0)  # an incidence without incoherent light: absolute weights
     W = np.sqrt(dbeta)[None, :] / (np.maximum(P, 0.0) + 0.01 * pmax)
-    obliquity = mu_nodes[:, None] * cs[None, :]  # f = a a L(ρ; μ̄) / (μ_i μ_o): fit L to p μ_i μ_o
+    # f = a a G(ρ, c) L(ρ; μ̄) / (μ_i μ_o): fit the shift-invariant L to p μ_i μ_o / G(u, c) in the plane
+    obliquity = mu_nodes[:, None] * cs[None, :] / geometric_factor(U**2, 2.0 * MU, xp=np)
     valid = np.broadcast_to(cs > COS_MIN, P.shape)
     coef = np.zeros((J, widths.size))
     resid = np.zeros(J)
@@ -314,6 +411,22 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
         if not np.any(prop[j] > 0):  # no lobe: a proposal of the narrowest allowed width
             prop[j, min(int(np.searchsorted(widths, min_width)), widths.size - 1)] = 1.0
         prop[j] = prop[j] / np.sum(prop[j] * np.pi * widths**2)
+    # nodes whose in-plane data do not reach their lobe (both directions near grazing, small c): the
+    # lobe of the last fully covered node continued to their q_z (generalised Harvey–Shack)
+    c_nodes = 2.0 * mu_nodes
+    mass = coef * np.pi * widths**2  # ∫ L d²ρ per basis term
+    coverage = np.sum(mass * erf(in_plane_reach(c_nodes)[:, None] / widths), -1) / np.maximum(mass.sum(-1), 1e-300)
+    last = int(np.argmax(coverage))  # near normal incidence a node pools a window of μ̄ (see _hat)
+    while last + 1 < J and coverage[last + 1] >= MIN_COVERAGE:
+        last += 1
+    continued = np.zeros(J, bool)
+    if coverage[last] >= MIN_COVERAGE and last < J - 1 and c_nodes[0] - c_nodes[last] >= MIN_C_SPAN:
+        n = last + 1
+        kroughness2 = _roughness(mu_nodes[:n], R_coh[:n], R_inc[:n], mass[:n].sum(-1))
+        kernel = _hankel_pair(widths)
+        for j in range(last + 1, J):
+            coef[j] = continue_lobe(coef[last], widths, kroughness2 * c_nodes[last] ** 2, kroughness2 * c_nodes[j] ** 2, kernel, min_width)
+        continued[last + 1:] = True
     # kernel of the symmetric normalisation: ∫_disk a(μ_o) L(ρ; μ̄) dβ at each tabulated incidence
     wi, wo, wt = disk_quadrature(mu_nodes, xp=np)
     mu_o = wo[..., 2]
@@ -324,7 +437,7 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
     for j in range(J):
         j0, t = _interp_index(mu_bar[j], mu_nodes, xp=np)
         c = _interp_rows(coef, j0, t)
-        L = np.sum(c * np.exp(-rho2[j][:, None] / widths**2), -1) * wt[j] / (mu_nodes[j] * mu_o[j])
+        L = np.sum(c * np.exp(-rho2[j][:, None] / widths**2), -1) * geometric_factor(rho2[j], 2.0 * mu_bar[j], xp=np) * wt[j] / (mu_nodes[j] * mu_o[j])
         outside[j] = 1.0 - np.sum(np.sum(prop[j] * np.exp(-rho2[j][:, None] / widths**2), -1) * wt[j])
         k0, s = _interp_index(mu_o[j], mu_nodes, xp=np)
         if J == 1:
@@ -349,6 +462,8 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
         "absorbed": absorbed,
         "outside_fraction": outside,
         "fit_residual": resid,
+        "lobe_coverage": coverage,
+        "continued": continued,
         "normalisation_error": np.asarray(norm_err),
         "lobe_theta_s_deg": np.asarray(lobes.theta_s_deg, float),
         "lobe_sigma": sigma,
@@ -407,9 +522,9 @@ class TabulatedBRDF(AbstractLobeBRDF):
         return _interp_rows(values, j0, t)
 
     def lobe(self, mu_bar, rho2):
-        """Radial lobe L(ρ; μ̄) (f_inc = a(μ_i) a(μ_o) L / (μ_i μ_o))."""
+        """G(ρ, 2μ̄) L(ρ; μ̄): the radial lobe times the geometric factor (f_inc = a(μ_i) a(μ_o) G L / (μ_i μ_o))."""
         c = self._at(self.coef, mu_bar)
-        return jnp.sum(c * jnp.exp(-rho2[..., None] / self.widths**2), -1)
+        return jnp.sum(c * jnp.exp(-rho2[..., None] / self.widths**2), -1) * geometric_factor(rho2, 2.0 * mu_bar)
 
     def incoherent(self, wi, wo):
         mi, mo = wi[..., 2], wo[..., 2]

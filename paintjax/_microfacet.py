@@ -23,7 +23,8 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF
-from ._instrument import Geometry, refract_into_coat
+from ._instrument import Geometry
+from ._interface import check_waviness, gauss_hermite_facets, refract, slope_sd, visible_weight
 from ._lightness import reflectance_factor_to_lightness
 from ._optics import fresnel_dielectric
 from ._tilt import MAX_TILT_DEG, GammaTilt
@@ -119,10 +120,15 @@ def microfacet_reflectance_factor(
     platelet: AbstractPlateletBRDF | None = None,
     exit_occlusion: bool = True,
     aperture_nodes: int = 6,
+    waviness_deg: float = 0.0,
+    waviness_nodes: int = 8,
 ) -> Float[Array, " m"]:
     """Reflectance factor R = π T_i T_o f_in / n² at each detector of `geometry`.
 
     Finite aperture half-angles (if set on the geometry) are averaged over with a cone quadrature.
+    A wavy clearcoat (`_interface`) averages R over the visible facets of both crossings,
+    R = E_{m_i, m_o}[v_i v_o π T(m_i) T(m_o) f_in(ω_i(m_i), ω_o(m_o))] / n², by tensor
+    Gauss–Hermite quadrature of the slopes.
 
     Arguments:
         geometry: instrument geometry (directions in air).
@@ -131,6 +137,8 @@ def microfacet_reflectance_factor(
         platelet: platelet BRDF (default: aluminium mirror in the binder at 550 nm).
         exit_occlusion: see `single_scatter_brdf`.
         aperture_nodes: radial and azimuthal nodes of each aperture's cone quadrature.
+        waviness_deg: RMS slope angle of the clearcoat surface [deg] (0 = flat).
+        waviness_nodes: Gauss–Hermite nodes per slope component.
 
     Returns:
         Reflectance factor per detector.
@@ -142,13 +150,26 @@ def microfacet_reflectance_factor(
     wo_air = cone_directions(geometry.detectors_air(), geometry.detector_aperture_deg, aperture_nodes)
     wi_air, wi_w = wi_air
     wo_air, wo_w = wo_air  # (m, q, 3), (q,)
-    wi = refract_into_coat(wi_air, n)  # (qi, 3)
-    wo = refract_into_coat(wo_air, n)  # (m, qo, 3)
-    Ti = 1.0 - fresnel_dielectric(wi_air[..., 2], 1.0, n)[2]
-    To = 1.0 - fresnel_dielectric(wo_air[..., 2], 1.0, n)[2]
+    waviness_deg = check_waviness(waviness_deg)
+    facets, facet_w = (jnp.asarray(a) for a in gauss_hermite_facets(waviness_deg, waviness_nodes))
+    wi, Ti = _through_coat(wi_air, facets, facet_w, n, slope_sd(waviness_deg))  # (qi·q, 3), (qi·q,)
+    wo, To = _through_coat(wo_air, facets, facet_w, n, slope_sd(waviness_deg))  # (m, qo·q, 3), (m, qo·q)
     f = single_scatter_brdf(wi[None, None, :, :], wo[:, :, None, :], tilt, platelet, exit_occlusion=exit_occlusion)
     R = jnp.pi * Ti[None, None, :] * To[:, :, None] * f / n**2
-    return jnp.einsum("moi,o,i->m", R, wo_w, wi_w)
+    return jnp.einsum("moi,o,i->m", R, jnp.repeat(wo_w, facets.shape[0]), jnp.repeat(wi_w, facets.shape[0]))
+
+
+def _through_coat(w_air, facets, facet_w, n, sd):
+    """Internal directions and weights v·T·(quadrature weight) of air directions w_air (..., q_a, 3) crossing facets (q, 3).
+
+    Returns directions (..., q_a·q, 3) pointing away from the layer and weights (..., q_a·q).
+    """
+    wa = w_air[..., :, None, :]
+    t, cos_i = refract(-wa, facets, 1.0 / n)
+    T = 1.0 - fresnel_dielectric(cos_i, 1.0, n)[2]
+    weight = visible_weight(wa, facets, sd) * T * facet_w
+    shape = w_air.shape[:-1]
+    return (-t).reshape(*shape[:-1], -1, 3), weight.reshape(*shape[:-1], -1)
 
 
 def cone_directions(axis: Float[Array, "... 3"], half_angle_deg: float, nodes: int):

@@ -13,6 +13,12 @@ Transport.
 * At the clearcoat–air interface from inside, the weight is split deterministically: (1 − R)
   leaves (scored by the histogram estimator), R is reflected back (R = 1 under total internal
   reflection above 41.8° for n = 1.5).
+* Optional clearcoat waviness (`waviness_deg`, RMS slope angle; `_interface`): every crossing of
+  the surface (entry, internal reflection / exit, and each NEE direction) happens at a facet drawn
+  from the visible-normal density of the Gaussian slope distribution (exact inversion, weight 1;
+  NEE draws from the slope distribution with the visible-area weight v G1). Reflection and refraction are about the facet; an
+  internal reflection that would still travel upward (grazing, rare) is mirrored down (multiple
+  facet scattering and masking are neglected, O(slope²)). Off by default.
 * Platelet boxes (centre ± w/2 u ± w/2 v ± t/2 n) are intersected with a slab test. The face
   through which a ray enters decides the scattering normal: the top and bottom faces scatter with
   the platelet BRDF (importance sampled, weight f cos/pdf; the weight lost is the platelet
@@ -32,7 +38,8 @@ Estimators (reflectance factor R = π L / E, brief §3).
   the BRDF (Lambert for the primer) toward the detector's refracted internal direction ω_j (a
   uniform random direction of the detector's aperture cone when it is finite), a shadow ray to
   the top of the basecoat through the grid, the exit transmittance T_o and the n² radiance
-  change: R_j += π w f cos V T_o / (n² cosθ_j). Contributions below `shadow_roulette` go through
+  change: R_j += π w f cos V T_o / (n² cosθ_j) (wavy coat: T_o → v_j T(m_j) and ω_j the refraction
+  of the detector direction at a facet m_j drawn for this event). Contributions below `shadow_roulette` go through
   an unbiased roulette, so most negligible shadow rays are never traced.
   Delta parts (mirror platelets, or a BRDF's coherent part with `coherent="delta"`) have no
   finite value: a path whose last event was a delta reflection is scored when it exits, into
@@ -72,6 +79,7 @@ from jaxtyping import Array, Float, Int
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF
 from ._instrument import MAX_POLAR_DEG, Geometry
 from ._lightness import reflectance_factor_to_lightness
+from ._interface import check_waviness, reflect, refract, sample_facet_normal, sample_visible_facet, slope_sd, visible_weight
 from ._microfacet import _orthonormal_basis, check_coat_index
 from ._optics import fresnel_dielectric
 
@@ -189,8 +197,10 @@ class _Scene(eqx.Module):
     det_air: Float[Array, "m 3"]
     det_cos_alpha: Float[Array, ""]
     brdf: AbstractPlateletBRDF
+    slope_sd: Float[Array, ""]  # per-component slope sd of a wavy clearcoat (0 = flat)
     max_cells: int = eqx.field(static=True)  # budget of a ray's step
     shadow_cells: int = eqx.field(static=True)  # budget of a shadow ray (always enough)
+    wavy: bool = eqx.field(static=True, default=False)  # draw facet normals at the clearcoat surface
 
 
 def _bucket(x: int, q: int) -> int:
@@ -398,16 +408,38 @@ def _key_from(h):
     return jnp.stack([_mix(h ^ jnp.uint32(0xA511E9B3)), _mix(h ^ jnp.uint32(0x63D83595))])
 
 
+def _new_ray_uniforms(sc: _Scene) -> int:
+    return 7 if sc.wavy else 5
+
+
+def _facet(sc: _Scene, u1, u2, dtype):
+    """Clearcoat facet normal from two uniforms (the flat normal when the coat is flat)."""
+    if not sc.wavy:
+        return jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0], dtype), jnp.shape(u1) + (3,))
+    return sample_facet_normal(sc.slope_sd, u1, u2)
+
+
 def _new_ray(sc: _Scene, u, dtype, randomize_azimuth: bool = True):
-    """Position, direction, weight, rotation (cos, sin) of a fresh ray from uniforms u (5,)."""
+    """Position, direction, weight T, top reflection 1 − T and rotation (cos, sin) of a fresh ray from uniforms u.
+
+    The ray enters through a clearcoat facet m (flat: m = z; wavy: drawn from the visible-normal
+    density of the illumination direction).
+    """
     phi = 2.0 * jnp.pi * u[4] if randomize_azimuth else jnp.zeros((), dtype)
     c, s = jnp.cos(phi), jnp.sin(phi)
     w_air = _cone(sc.illum_air, sc.illum_cos_alpha, u[2], u[3])
     w_air = _rotz(w_air, c, s)
-    Ti = 1.0 - fresnel_dielectric(w_air[2], 1.0, sc.n)[2]
-    d = -_refract_in(w_air, sc.n)
+    if sc.wavy:
+        mf = sample_visible_facet(w_air, sc.slope_sd, u[5], u[6])
+        t, cos_i = refract(-w_air, mf, 1.0 / sc.n)
+        d = t / jnp.linalg.norm(t)
+    else:
+        cos_i = w_air[2]
+        d = -_refract_in(w_air, sc.n)
+    Ri = fresnel_dielectric(cos_i, 1.0, sc.n)[2]
     pos = jnp.stack([u[0] * sc.tile[0], u[1] * sc.tile[1], sc.h_b - sc.eps])
-    return pos.astype(dtype), d.astype(dtype), Ti.astype(dtype), c.astype(dtype), s.astype(dtype)
+    cast = lambda x: jnp.asarray(x).astype(dtype)  # noqa: E731
+    return cast(pos), cast(d), cast(1.0 - Ri), cast(Ri), cast(c), cast(s)
 
 
 def _has_delta(brdf) -> bool:
@@ -421,7 +453,8 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     dtype = pos.dtype
     m = sc.det_air.shape[0]
     has_delta = _has_delta(sc.brdf)
-    u = _uniforms(key, _NU + 3 * m, dtype)
+    u = _uniforms(key, _NU + 3 * m + (2 + 2 * m if sc.wavy else 0), dtype)
+    uf = u[_NU + 3 * m :]  # facet draws of a wavy coat: 2 at the top, 2 per detector
     kb = _key_from(key)
     nee = jnp.zeros(m, dtype)  # NEE is scored by `_shadows` one step later
 
@@ -476,8 +509,16 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     uj = u[_NU : _NU + 2 * m].reshape(m, 2)
     w_air = _cone(sc.det_air, sc.det_cos_alpha, uj[:, 0], uj[:, 1])
     w_air = _rotz(w_air, cph, sph)
-    w_in = _refract_in(w_air, sc.n)
-    To = 1.0 - fresnel_dielectric(w_air[:, 2], 1.0, sc.n)[2]
+    if sc.wavy:  # the detector sees the visible facets m_j: v_j T(m_j) L_in(refraction of ω_j at m_j) / n²
+        mj = _facet(sc, uf[2 : 2 + m], uf[2 + m : 2 + 2 * m], dtype)
+        t, cos_j = refract(-w_air, mj, 1.0 / sc.n)
+        w_in = -t / jnp.linalg.norm(t, axis=-1, keepdims=True)
+        To = visible_weight(w_air, mj, sc.slope_sd) * (1.0 - fresnel_dielectric(cos_j, 1.0, sc.n)[2])
+        To = jnp.where(w_in[:, 2] > 1e-6, To, 0.0)
+        w_in = w_in.at[:, 2].set(jnp.maximum(w_in[:, 2], 1e-6))
+    else:
+        w_in = _refract_in(w_air, sc.n)
+        To = 1.0 - fresnel_dielectric(w_air[:, 2], 1.0, sc.n)[2]
     wo_loc_j = _to_local(w_in, t1[None], t2[None], n_ev[None])
     f_pl = sc.brdf.evaluate(jnp.broadcast_to(wi_loc, (m, 3)), wo_loc_j).astype(dtype)
     f = jnp.where(hit, f_pl, sc.albedo / jnp.pi)
@@ -489,18 +530,28 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     val = jnp.where(score & jnp.isfinite(val) & (val > 0), val, 0.0)
     if opt.shadow_roulette > 0:  # unbiased roulette on small contributions saves shadow rays
         small = val < opt.shadow_roulette
-        val = jnp.where(small, jnp.where(u[_NU + 2 * m :] * opt.shadow_roulette < val, opt.shadow_roulette, 0.0), val)
+        val = jnp.where(small, jnp.where(u[_NU + 2 * m : _NU + 3 * m] * opt.shadow_roulette < val, opt.shadow_roulette, 0.0), val)
     new_sh_val = val.astype(dtype)
     new_sh_dir = w_in.astype(dtype)
     new_sh_lim = ((sc.h_b - origin[2]) / w_in[:, 2]).astype(dtype)
 
-    # --- top of the basecoat: clearcoat transit, Fresnel split, histogram
+    # --- top of the basecoat: clearcoat transit, Fresnel split at the (facet of the) surface, histogram
     cz = jnp.where(top, dz, 1.0)
     shift_c = sc.h_c * d[:2] / cz
-    Rint = fresnel_dielectric(cz, sc.n, 1.0)[2]
+    if sc.wavy:  # the facet the ray meets, from the visible-normal density; the reflection stays in the coat
+        d_up = jnp.where(top, d, jnp.array([0.0, 0.0, 1.0], dtype))
+        mt = sample_visible_facet(d_up, sc.slope_sd, uf[0], uf[1])
+        t, cos_t = refract(d_up, -mt, sc.n)
+        Rint = fresnel_dielectric(cos_t, sc.n, 1.0)[2]
+        ex_air = t / jnp.linalg.norm(t)
+        d_ref = reflect(d_up, mt)
+        d_ref = d_ref.at[2].set(-jnp.abs(d_ref[2]))  # a reflection still going up (grazing) is mirrored down
+    else:
+        Rint = fresnel_dielectric(cz, sc.n, 1.0)[2]
+        txy = sc.n * d[:2]
+        ex_air = jnp.concatenate([txy, jnp.sqrt(jnp.clip(1.0 - jnp.sum(txy * txy), 0.0, 1.0))[None]])
+        d_ref = d * jnp.array([1.0, 1.0, -1.0], dtype)
     w_exit = jnp.where(top, w * (1.0 - Rint), 0.0)
-    txy = sc.n * d[:2]
-    ex_air = jnp.concatenate([txy, jnp.sqrt(jnp.clip(1.0 - jnp.sum(txy * txy), 0.0, 1.0))[None]])
     ex_inst = _rotz(ex_air, cph, -sph)
     omega = 2.0 * jnp.pi * (1.0 - sc.det_cos_alpha)
     inside = (jnp.sum(sc.det_air * ex_inst[None], -1) >= sc.det_cos_alpha) & (omega > 0)
@@ -511,10 +562,11 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
 
     # --- new state and ledger
     new_w = jnp.where(event, w * factor, jnp.where(top, w * Rint, w))
-    new_d = jnp.where(event, wo, jnp.where(top, d * jnp.array([1.0, 1.0, -1.0], dtype), d))
+    new_d = jnp.where(event, wo, jnp.where(top, d_ref, d))
     new_pos = jnp.where(hit, x_hit + sc.eps * nf, pos)
     new_pos = jnp.where(bottom, jnp.concatenate([x_bot[:2], sc.eps[None]]), new_pos)
-    new_pos = jnp.where(top, jnp.concatenate([pos[:2] + t_slab * d[:2] + 2.0 * shift_c, (sc.h_b - sc.eps)[None]]), new_pos)
+    shift_down = sc.h_c * d_ref[:2] / jnp.where(top, -d_ref[2], 1.0)
+    new_pos = jnp.where(top, jnp.concatenate([pos[:2] + t_slab * d[:2] + shift_c + shift_down, (sc.h_b - sc.eps)[None]]), new_pos)
     new_pos = jnp.where(moving, pos + (treach + sc.eps) * d, new_pos)
     new_pos = jnp.concatenate([jnp.mod(new_pos[:2], sc.tile), jnp.clip(new_pos[2:], 0.0, sc.h_b)])
     absorbed_pl = jnp.where(hit, w * (1.0 - factor), 0.0)
@@ -606,8 +658,8 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
         local_id = next_local[0] + rank
         start = dead & (local_id < n_local)
         rid = jnp.where(start, local_id * ndev + dev, rid)
-        ug = jax.vmap(lambda r: _uniforms(_ray_hash(key, r, jnp.asarray(0x7FFFFFFF, jnp.uint32)), 5, dtype))(rid)
-        p0, d0, w0, c0, s0 = jax.vmap(lambda uu: _new_ray(sc, uu, dtype, opt.randomize_azimuth))(ug)
+        ug = jax.vmap(lambda r: _uniforms(_ray_hash(key, r, jnp.asarray(0x7FFFFFFF, jnp.uint32)), _new_ray_uniforms(sc), dtype))(rid)
+        p0, d0, w0, r0, c0, s0 = jax.vmap(lambda uu: _new_ray(sc, uu, dtype, opt.randomize_azimuth))(ug)
         col = start[:, None]
         pos, d = jnp.where(col, p0, pos), jnp.where(col, d0, d)
         w, cph, sph = jnp.where(start, w0, w), jnp.where(start, c0, cph), jnp.where(start, s0, sph)
@@ -616,7 +668,7 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
         spec = spec & ~start
         alive = alive | start
         next_local = next_local + jnp.sum(start).astype(idt)
-        t_start = jnp.zeros_like(tally).at[:, -7].set((1.0 - w0).astype(tally.dtype)).at[:, -1].set(1.0)
+        t_start = jnp.zeros_like(tally).at[:, -7].set(r0.astype(tally.dtype)).at[:, -1].set(1.0)
         tally = tally + jnp.where(col, t_start, 0.0)
         nee = _shadows(sc, opt, *sh)
         tally = tally.at[:, : nee.shape[1]].add(nee.astype(tally.dtype))
@@ -684,7 +736,7 @@ def _check_range(name, value, lo, hi, lo_open=False):
 
 
 def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, n: float, clearcoat_thickness: float,
-                primer_albedo: float, dtype=jnp.float32, min_cells: int = 2) -> _Scene:
+                primer_albedo: float, waviness_deg: float = 0.0, dtype=jnp.float32, min_cells: int = 2) -> _Scene:
     """Pack an array, its grid, the BRDF and the instrument into the tracer's device scene.
 
     Platelet and cell tables are padded to bucketed sizes and the grid dimensions are traced
@@ -721,8 +773,10 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
         det_air=arr(geometry.detectors_air()),
         det_cos_alpha=arr(np.cos(np.deg2rad(geometry.detector_aperture_deg))),
         brdf=brdf,
+        slope_sd=arr(slope_sd(waviness_deg)),
         max_cells=int(min_cells),
         shadow_cells=_shadow_cell_bound(shape, cell, h_b, float(n)),
+        wavy=waviness_deg > 0.0,
     )
 
 
@@ -768,6 +822,7 @@ def trace(
     n: float = 1.5,
     clearcoat_thickness: float = 50.0,
     primer_albedo: float = 0.3,
+    waviness_deg: float = 0.0,
     rays: int = 262144,
     seed: int = 0,
     single_scatter: bool = False,
@@ -786,6 +841,7 @@ def trace(
         n: clearcoat / binder index in (1, 3].
         clearcoat_thickness: h_c in µm (≥ 0).
         primer_albedo: Lambertian primer albedo ρ in [0, 1].
+        waviness_deg: RMS slope angle of a wavy clearcoat surface in [0, 15]° (0: flat; see `_interface`).
         rays: number of rays (rounded up to a multiple of the device count).
         seed: random seed; the result depends on it and on `options`, not on the schedule.
         single_scatter: score only the first scattering event of each path.
@@ -800,6 +856,7 @@ def trace(
     check_coat_index(n)
     _check_range("primer_albedo", primer_albedo, 0.0, 1.0)
     _check_range("clearcoat_thickness", clearcoat_thickness, 0.0, 1e4)
+    waviness_deg = check_waviness(waviness_deg)
     if int(rays) < 1:
         raise ValueError(f"rays must be a positive integer, got {rays!r}")
     if target_se_lstar is not None:
@@ -817,7 +874,7 @@ def trace(
         raise ValueError("grid.overflow is set: some cell exceeded its capacity; rebuild the grid with a larger capacity")
     cdt = jnp.float64 if (opt.float64 and jax.config.jax_enable_x64) else jnp.float32
     sc = build_scene(array, geometry, brdf, grid, n=n, clearcoat_thickness=clearcoat_thickness, primer_albedo=primer_albedo,
-                     dtype=cdt, min_cells=opt.cells_per_step)
+                     waviness_deg=waviness_deg, dtype=cdt, min_cells=opt.cells_per_step)
     devices = jax.local_devices()
     ndev = len(devices)
     mesh = Mesh(np.array(devices), ("rays",))

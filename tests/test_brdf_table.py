@@ -29,7 +29,7 @@ def tables():
     return lobes, table_from_lobes(lobes), table_from_lobes(lobes, method="rotate")
 
 
-def beta_grid(theta_i, half=0.6, n=81):
+def beta_grid(theta_i, half=0.6, n=161):
     wi = np.array([np.sin(np.deg2rad(theta_i)), 0.0, np.cos(np.deg2rad(theta_i))])
     g = np.linspace(-half, half, n)
     bx, by = np.meshgrid(-wi[0] + g, g, indexing="ij")
@@ -48,12 +48,22 @@ def core_deviation(table, theta_i):
     return np.max(np.abs(ft[core] / fa[core] - 1.0))
 
 
-@pytest.mark.parametrize("theta_i", [0.0, 20.0, 40.0])
+@pytest.mark.parametrize("theta_i", [0.0, 20.0, 40.0, 60.0])
 def test_table_from_1d_kirchhoff_matches_3d_kirchhoff(theta_i):
     """The inverse-Abel table of 1-D Kirchhoff lobes reproduces the isotropic 3-D Kirchhoff BRDF
-    within 10 % in the lobe core (in and out of the plane of incidence)."""
+    within 10 % in the lobe core (in and out of the plane of incidence; at 60° the core reaches the
+    disk edge, where both directions are near grazing and the lobe is the q_z continuation).
+    Measured (161² grid): 0.3 %, 0.6 %, 0.3 %, 4.3 % at 0°, 20°, 40°, 60°."""
     _, abel, _ = tables()
     assert core_deviation(abel, theta_i) < 0.10
+
+
+def test_kirchhoff_table_needs_no_renormalisation():
+    """Where the 1-D and 3-D Kirchhoff reflectances agree (within 2.5 % up to 89°), the lobe the
+    2-D → 3-D step builds already carries that reflectance: the symmetric scale a(μ) stays near 1
+    (it reached 1.14 at grazing before the geometric factor and the q_z continuation)."""
+    _, abel, _ = tables()
+    assert np.all(np.abs(np.asarray(abel.scale) - 1.0) < 0.05)
 
 
 def test_rotation_is_the_worse_assumption():

@@ -40,7 +40,7 @@ def register(sub) -> None:
     p.add_argument("--reflectance", type=float, help="constant platelet reflectance in [0, 1] (mirror only); default: Fresnel of Al")
     p.add_argument("--primer-albedo", type=float, default=DEFAULT_PRIMER_ALBEDO,
                    help=f"Lambertian primer albedo in [0, 1] (default {DEFAULT_PRIMER_ALBEDO})")
-    p.add_argument("--waviness", type=float, default=0.0, help="clearcoat rms slope [deg] (rough top interface; default 0 = flat)")
+    p.add_argument("--waviness", type=float, default=0.0, help="clearcoat RMS slope angle [deg] in [0, 15]: a wavy (microfacet dielectric) top surface; default 0 = flat")
     p.add_argument("--rays", type=int, help=f"number of rays; default: as many as needed for an L* standard error ≤ {DEFAULT_TARGET_SE}")
     p.add_argument("--seed", type=int, default=0, help="random seed of the array and the rays (default 0)")
     p.add_argument("--single-scatter", action="store_true", help="score only the first scattering event of each path")
@@ -141,8 +141,6 @@ def simulate(
 
     t0 = time.perf_counter()
     s = load_sample(sample)
-    if waviness != 0.0:
-        raise ValueError("waviness: the rough (wavy) clearcoat is not implemented; only 0 (flat) is accepted")
     if rays is not None and int(rays) < 1:
         raise ValueError(f"rays must be a positive integer, got {rays!r}")
     n = s.binder_index
@@ -153,7 +151,7 @@ def simulate(
     grid = build_grid(array)
     aperture = MIRROR_APERTURE_DEG if platelet.is_delta else 0.0
     geometry = ma98_geometry(45.0, STANDARD_ASPECULAR, detector_aperture_deg=aperture)
-    kwargs = dict(grid=grid, n=n, clearcoat_thickness=s.clearcoat_thickness, primer_albedo=primer_albedo, seed=seed,
+    kwargs = dict(grid=grid, n=n, clearcoat_thickness=s.clearcoat_thickness, primer_albedo=primer_albedo, waviness_deg=waviness, seed=seed,
                   single_scatter=single_scatter, options=options)
     if rays is None:
         res = trace(array, geometry, platelet, rays=131072, target_se_lstar=target_se, max_rays=max_rays, **kwargs)
@@ -165,6 +163,7 @@ def simulate(
     out["sample"] = s.name
     out["brdf"] = brdf
     out["aperture_deg"] = aperture
+    out["waviness_deg"] = float(waviness)
     out["histogram_reflectance_factor"] = res.histogram_reflectance_factor
     L = res.L_star
     out["flop_index"] = float(flop_index(L[0], L[2], L[4]))

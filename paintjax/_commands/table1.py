@@ -36,6 +36,8 @@ def add_arguments(p) -> None:
                    help="ray ceiling per sample of the hybrid column (keeps the run within ~3 minutes; default 327680)")
     p.add_argument("--mirror-rays", type=int, default=131072, help="rays of the mirror column (default 131072)")
     p.add_argument("--seed", type=int, default=0, help="seed of the platelet arrays and the rays (default 0)")
+    p.add_argument("--waviness", type=float, default=0.0,
+                   help="clearcoat RMS slope angle [deg] for every model column (default 0 = flat, as measured samples are not characterised)")
     add_output_argument(p, "results/table1")
     add_json_argument(p)
     p.set_defaults(func=run)
@@ -53,7 +55,8 @@ def _hybrid_available() -> tuple[bool, str]:
     return True, ""
 
 
-def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, seed: int = 0, max_rays: int = 327680) -> dict:
+def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, seed: int = 0, max_rays: int = 327680,
+            waviness: float = 0.0) -> dict:
     """All columns for both samples (plain dict; `None` where a column is unavailable)."""
     from .._brdf import MirrorBRDF
     from .._instrument import ma98_geometry
@@ -69,6 +72,9 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
         raise ValueError(f"max_rays must be a positive integer, got {max_rays!r}")
     if int(mirror_rays) < 1:
         raise ValueError(f"mirror_rays must be a positive integer, got {mirror_rays!r}")
+    from .._interface import check_waviness
+
+    waviness = check_waviness(waviness)
     available, why = _hybrid_available()
     out = {"samples": {}, "notes": []}
     if not available:
@@ -80,14 +86,14 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
         hybrid = None
         if available:
             try:
-                hybrid = simulate(name, brdf="wave", seed=seed, target_se=target_se, max_rays=max_rays)
+                hybrid = simulate(name, brdf="wave", seed=seed, target_se=target_se, max_rays=max_rays, waviness=waviness)
             except (ValueError, ImportError, OSError) as err:
                 out["notes"].append(f"hybrid column unavailable for {name}: {err}")
-        mirror = simulate(name, brdf="mirror", seed=seed, rays=mirror_rays)
+        mirror = simulate(name, brdf="mirror", seed=seed, rays=mirror_rays, waviness=waviness)
         geo = ma98_geometry(45.0)
         tilt = GammaTilt(s.tilt_shape.value, s.tilt_scale.value)
         analytic = np.asarray(reflectance_factor_to_lightness(
-            microfacet_reflectance_factor(geo, tilt, n=s.binder_index, platelet=MirrorBRDF(n_binder=s.binder_index))))
+            microfacet_reflectance_factor(geo, tilt, n=s.binder_index, platelet=MirrorBRDF(n_binder=s.binder_index), waviness_deg=waviness)))
         row["hybrid"] = None if hybrid is None else np.asarray(hybrid["L_star"])
         row["hybrid_se"] = None if hybrid is None else np.asarray(hybrid["L_star_se"])
         row["mirror"] = np.asarray(mirror["L_star"])
@@ -103,6 +109,7 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
         row["seconds"] = time.perf_counter() - t0
         out["samples"][name] = row
     out["aspecular_deg"] = list(load_sample("silver1").aspecular_deg)
+    out["waviness_deg"] = waviness
     return out
 
 
@@ -140,7 +147,7 @@ def run(args) -> int:
 
     enable_compilation_cache()
     t0 = time.perf_counter()
-    r = compute(args.target_se, args.mirror_rays, args.seed, args.max_rays)
+    r = compute(args.target_se, args.mirror_rays, args.seed, args.max_rays, waviness=args.waviness)
     r["seconds"] = time.perf_counter() - t0
     atomic_write_json(f"{args.out}/table1.json", r)
     png = _plot(r, args.out)
