@@ -26,13 +26,16 @@ G(|u|, c)/(μ_i μ_o), is the projection of L(·; μ̄) on the plane of incidenc
 instead, as tables before version 6 did, ignores that G grows off the plane: 5 % at 40° and
 tens of % near grazing.) Each in-plane sample (any incidence, cosθ_s > 0.1) is assigned to its
 mean cosine μ̄; the coefficients C_j of node j are the non-negative least-squares fit (relative
-weighting down to 1 % of the peak, hat weights in μ̄) of p μ_i μ_o / G by the projections
+error down to 1 % of the peak, hat weights in μ̄) of p μ_i μ_o / G by the projections
 √π w_k e^{−u²/w_k²} of the basis — the inverse Abel transform, exact term by term (BASEX-style
-basis expansion). `method="rotate"` instead fits the in-plane *cut* e^{−u²/w_k²} (the original
-study's axisymmetric rotation of the 1-D lobe). Basis widths below `min_width` (2/(kτ) for tables
-built by `platelet_table_arrays`: the width of the narrowest, m = 1, term of the Kirchhoff series
-of a Gaussian surface) are not used, so the speckle of a profile average — which the memory
-effect repeats about the specular point of every incidence — is not fitted as structure.
+basis expansion). The relative-error weights come from the fitted lobe, not the data (iteratively
+reweighted, `fit_radial_lobe`): weights from the speckled data of a 10-profile average biased every
+lobe ≈ 20 % low, uniformly (tables before version 7; a(μ) ≈ 1.10–1.2 made it up). `method="rotate"`
+instead fits the in-plane *cut* e^{−u²/w_k²} (the original study's axisymmetric rotation of the
+1-D lobe). Basis widths below `min_width` (2/(kτ) for tables built by `platelet_table_arrays`:
+the width of the narrowest, m = 1, term of the Kirchhoff series of a Gaussian surface) are not
+used, so the speckle of a profile average — which the memory effect repeats about the specular
+point of every incidence — is not fitted as structure.
 
 **Small c: continuation in q_z.** In the plane of incidence a pair with μ_i + μ_o = c reaches
 only |u| ≤ |sinθ_a − sinθ_b| ≤ 1 − √(1 − c²) from the specular point (`in_plane_reach`): when
@@ -108,9 +111,11 @@ DEFAULT_INCIDENCE_DEG = np.concatenate([np.arange(0.0, 88.0, 3.0), [89.0]])
 DEFAULT_NUM_WIDTHS = 36
 _MIN_WIDTH, _MAX_WIDTH = 0.012, 2.5
 #: Bumped when the table construction changes (part of the cache key).
-TABLE_VERSION = 6
+TABLE_VERSION = 7
 #: In-plane points closer to grazing than this cosine are not used by the lobe fit.
 COS_MIN = 0.1
+#: Relative-error fits: passes with weights from the fitted model after the first (data-weighted) one.
+REWEIGHT_PASSES = 2
 
 
 class InPlaneLobes(eqx.Module):
@@ -201,7 +206,10 @@ def debias_coherent(lobes, num_profiles: int, window_beta: float = 0.08) -> InPl
     With N profiles, |⟨ψ⟩_N|² = |⟨ψ⟩|² + (⟨|ψ|²⟩ − |⟨ψ⟩|²)/N on average, so the unbiased coherent
     coefficient is (N σ_coh − σ)/(N − 1). It is kept within |sinθ_s − sinθ_i| < `window_beta` (the
     tapered-beam specular peak, ~1/(kg) wide) and set to 0 elsewhere, where it vanishes in
-    expectation; the incoherent part is σ minus the result, so σ itself is unchanged.
+    expectation; the incoherent part is σ minus the result, so σ itself is unchanged. For rough
+    surfaces (coherent fraction e^{−(2kσ cosθ)²} ≪ 1/N) the unbiased estimate of an incidence's
+    coherent reflectance can come out negative; such an incidence gets the estimator's positive
+    part, 0 (all of σ incoherent), which is within the estimate's noise of the truth.
     """
     lob = as_numpy_lobes(lobes)
     N = int(num_profiles)
@@ -209,6 +217,7 @@ def debias_coherent(lobes, num_profiles: int, window_beta: float = 0.08) -> InPl
     ts = np.deg2rad(lob.theta_s_deg)[None, :]
     ti = np.deg2rad(lob.incidence_deg)[:, None]
     coh = np.where(np.abs(np.sin(ts) - np.sin(ti)) < window_beta, coh, 0.0)
+    coh = np.where(np.trapezoid(coh, ts[0], axis=-1)[:, None] > 0.0, coh, 0.0)
     return InPlaneLobes(lob.incidence_deg, lob.theta_s_deg, lob.sigma, coh, lob.reflected, lob.absorbed)
 
 
@@ -224,12 +233,19 @@ def _lobe_widths(num_widths: int = DEFAULT_NUM_WIDTHS) -> np.ndarray:
     return np.geomspace(_MIN_WIDTH, _MAX_WIDTH, num_widths)
 
 
-def fit_radial_lobe(u, p, weights, widths, method: str = "abel", min_width: float = 0.0):
+def fit_radial_lobe(u, p, weights, widths, method: str = "abel", min_width: float = 0.0, *, floor=None, reweight: int = REWEIGHT_PASSES):
     """Radial 2-D lobe coefficients of in-plane data p at distances u from the specular point.
 
     Model: p(u) ≈ Σ_k C_k B_k(u) with B_k = √π w_k e^{−u²/w_k²} (abel: the projection of
     L(ρ) = Σ C_k e^{−ρ²/w_k²}) or e^{−u²/w_k²} (rotate: the in-plane cut of L). Non-negative least
-    squares with the given row weights and a tiny ridge; basis widths below `min_width` are not used.
+    squares with a tiny ridge; basis widths below `min_width` are not used.
+
+    Row weights: `weights` as given when `floor` is None. With `floor` (scalar or per row) the fit is
+    in relative error down to the floor: row weights `weights / (ref + floor)`, ref = max(p, 0) in the
+    first pass and the fitted model in `reweight` further passes (iteratively reweighted least
+    squares). Weights taken from noisy data themselves bias the fit low — points that fluctuate down
+    weigh more: for the speckle of an N-profile average (Gamma(N) statistics) by (N − 2)/N, 20 %
+    for 10 profiles, uniformly over the lobe — weights from the smooth model do not.
 
     Returns:
         (coefficients C (K,), weighted relative rms residual).
@@ -237,10 +253,14 @@ def fit_radial_lobe(u, p, weights, widths, method: str = "abel", min_width: floa
     A = np.exp(-(u[:, None] ** 2) / widths**2) * (widths >= min_width)
     if method == "abel":
         A = A * (np.sqrt(np.pi) * widths)
-    Aw = A * weights[:, None]
-    ridge = 1e-6 * np.linalg.norm(Aw, axis=0).max()
-    c, _ = nnls(np.vstack([Aw, ridge * np.eye(len(widths))]), np.concatenate([p * weights, np.zeros(len(widths))]), maxiter=50 * len(widths))
-    resid = float(np.sqrt(np.mean(((A @ c - p) * weights) ** 2)) / max(np.sqrt(np.mean((p * weights) ** 2)), 1e-300))
+    ref = np.maximum(p, 0.0)
+    for _ in range(1 + (0 if floor is None else int(reweight))):
+        w = weights if floor is None else weights / (ref + floor)
+        Aw = A * w[:, None]
+        ridge = 1e-6 * np.linalg.norm(Aw, axis=0).max()
+        c, _ = nnls(np.vstack([Aw, ridge * np.eye(len(widths))]), np.concatenate([p * w, np.zeros(len(widths))]), maxiter=50 * len(widths))
+        ref = A @ c
+    resid = float(np.sqrt(np.mean(((A @ c - p) * w) ** 2)) / max(np.sqrt(np.mean((p * w) ** 2)), 1e-300))
     return c, resid
 
 
@@ -319,8 +339,7 @@ def continue_lobe(coef_ref, widths, X_ref: float, X_new: float, kernel, min_widt
         return np.zeros_like(coef_ref)
     gamma = np.log1p(np.maximum(g_ref, 0.0) * np.exp(X_ref) / A) / X_ref
     L = K @ (A * np.exp(-X_new) * np.expm1(X_new * gamma))
-    wts = 1.0 / (np.maximum(L, 0.0) + 0.01 * max(L.max(), 1e-300))
-    c, _ = fit_radial_lobe(rho, L, wts, widths, "rotate", min_width)
+    c, _ = fit_radial_lobe(rho, L, np.ones_like(L), widths, "rotate", min_width, floor=0.01 * max(L.max(), 1e-300))
     return c
 
 
@@ -390,7 +409,7 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
     MU = 0.5 * (mu_nodes[:, None] + cs[None, :])
     pmax = np.max(np.where(cs > COS_MIN, P, 0.0), axis=1, keepdims=True)
     pmax = np.where(pmax > 0, pmax, 1.0)  # an incidence without incoherent light: absolute weights
-    W = np.sqrt(dbeta)[None, :] / (np.maximum(P, 0.0) + 0.01 * pmax)
+    W = np.broadcast_to(np.sqrt(dbeta)[None, :], P.shape)  # × relative error down to 1 % of the peak (fit_radial_lobe)
     # f = a a G(ρ, c) L(ρ; μ̄) / (μ_i μ_o): fit the shift-invariant L to p μ_i μ_o / G(u, c) in the plane
     obliquity = mu_nodes[:, None] * cs[None, :] / geometric_factor(U**2, 2.0 * MU, xp=np)
     valid = np.broadcast_to(cs > COS_MIN, P.shape)
@@ -404,10 +423,11 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
             sel = np.zeros_like(sel)
             sel[j] = cs > 0.02
             h = sel.astype(float)
-        coef[j], resid[j] = fit_radial_lobe(U[sel], (P * obliquity)[sel], np.sqrt(h[sel]) * W[sel] / obliquity[sel], widths, method, min_width)
+        floor = (0.01 * pmax * obliquity)[sel]
+        coef[j], resid[j] = fit_radial_lobe(U[sel], (P * obliquity)[sel], np.sqrt(h[sel]) * W[sel], widths, method, min_width, floor=floor)
         # sampling proposal: the shift-invariant lobe of this incidence alone (inverse Abel of p)
         own = cs > COS_MIN
-        prop[j], _ = fit_radial_lobe(U[j, own], P[j, own], W[j, own], widths, "abel", min_width)
+        prop[j], _ = fit_radial_lobe(U[j, own], P[j, own], W[j, own], widths, "abel", min_width, floor=0.01 * pmax[j, 0])
         if not np.any(prop[j] > 0):  # no lobe: a proposal of the narrowest allowed width
             prop[j, min(int(np.searchsorted(widths, min_width)), widths.size - 1)] = 1.0
         prop[j] = prop[j] / np.sum(prop[j] * np.pi * widths**2)
