@@ -18,7 +18,16 @@ lobe, and the lobe depends mostly on σ/τ) that short chains started at the fit
 
 Writes experiments/output/coverage/summary.json and coverage.png (atomic).
 
+``--forward tracer-emulator``: the datasets come from the ray TRACER instead (direct runs, each
+with its own array and ray seed 1000 + i, different from the emulator's common-random-number seed
+0; fresh generator arrays with overlaps removed, as `paintjax simulate`), truths drawn from the
+log-uniform priors on the tracer box `TRACER_BOX`, plus 0.3 L* noise; fits and posteriors go
+through the registered tracer emulator (built once and cached; its `error_sd`, held-out RMS ⊕
+CRN-vs-independent-run spread, enters the likelihood). Default free parameters then all four
+(shape, scale, σ, τ). Output in experiments/output/coverage_tracer/.
+
 Run: python experiments/coverage.py [--datasets 20] [--steps 1500] [--walkers 16] [--quick]
+     python experiments/coverage.py --forward tracer-emulator [--datasets 20]
 """
 
 from __future__ import annotations
@@ -40,16 +49,33 @@ from paintjax._posterior import LogPosterior  # noqa: E402
 from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "coverage"
+OUT_TRACER = Path(__file__).parent / "output" / "coverage_tracer"
 ALL = ("shape", "scale", "sigma", "tau")
 FREE = ("shape", "scale")
 
 
-def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Path, free=("shape", "scale")) -> dict:
+def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Path, free=("shape", "scale"),
+        forward_name: str = "analytic", forward_options: dict | None = None) -> dict:
     global FREE
     FREE = tuple(free)
     jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
-    forward = AnalyticForward()
-    spec = make_spec(ALL)
+    tracer = forward_name == "tracer-emulator"
+    if tracer:
+        from paintjax._forward import make_forward
+        from paintjax._tracer_forward import TRACER_BOX, direct_tracer, tracer_info
+
+        t_build = time.perf_counter()
+        forward = make_forward("tracer-emulator", ALL, **(forward_options or {}))
+        build_info = tracer_info(forward) | {"seconds_this_process": time.perf_counter() - t_build}
+        direct = direct_tracer(forward)
+        spec = make_spec(ALL, TRACER_BOX)
+        extra_fixed = {}
+    elif forward_name == "analytic":
+        forward = AnalyticForward()
+        spec = make_spec(ALL)
+        extra_fixed = {"diffuse": 0.0}
+    else:
+        raise ValueError(f"forward must be 'analytic' or 'tracer-emulator', got {forward_name!r}")
     truths = np.asarray(spec.sample_prior(jax.random.key(seed), datasets))
     rng = np.random.default_rng(seed)
     levels = (0.5, 0.9)
@@ -60,15 +86,19 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     for i, t in enumerate(truths):
         truth = dict(zip(ALL, map(float, t)))
         held = {k: v for k, v in truth.items() if k not in FREE}
-        clean = np.asarray(forward(np.tile(np.r_[t, 0.0], (16, 1))))[0]
+        if tracer:
+            clean, clean_se = direct.evaluate(t[None], seed=1000 + i, return_se=True, mode="rsa")
+            clean, clean_se = clean[0], clean_se[0]
+        else:
+            clean, clean_se = np.asarray(forward(np.tile(np.r_[t, 0.0], (16, 1))))[0], np.zeros(5)
         y = clean + rng.normal(0.0, 0.3, 5)
-        fr = fit_least_squares(forward, y, free=FREE, fixed={"diffuse": 0.0, **held}, n_starts=starts, seed=seed + i)
+        fr = fit_least_squares(forward, y, free=FREE, fixed={**extra_fixed, **held}, n_starts=starts, seed=seed + i)
         best = fr.chi2
         same = sum(np.isfinite(s["chi2"]) and s["chi2"] <= best + 1e-3 * max(1.0, best) for s in fr.starts)
         z = {n: (fr.values[n] - truth[n]) / fr.stderr[n] if fr.stderr[n] > 0 else np.nan for n in FREE}
-        post = sample_posterior(forward, y, free=FREE, fixed={"diffuse": 0.0, "discrepancy": 0.0, **held}, walkers=walkers, max_steps=steps, min_steps=steps,
+        post = sample_posterior(forward, y, free=FREE, fixed={**extra_fixed, "discrepancy": 0.0, **held}, walkers=walkers, max_steps=steps, min_steps=steps,
                                 check_every=steps, min_ess=0, init=fr, seed=seed + i, progress=False, inference_data=False)
-        row = {"truth": truth, "L_star_clean": clean.tolist(), "L_star": y.tolist(), "lsq": fr.values, "lsq_stderr": fr.stderr,
+        row = {"truth": truth, "L_star_clean": clean.tolist(), "L_star_clean_se": clean_se.tolist(), "L_star": y.tolist(), "lsq": fr.values, "lsq_stderr": fr.stderr,
                "lsq_chi2": best, "lsq_success": fr.success, "starts_at_best": int(same), "lsq_z": z,
                "tau_int_max": max(post.tau_int.values()), "n_eff": post.n_eff, "inside": {}}
         for lv in levels:
@@ -78,7 +108,7 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
                 hits[lv][j] += inside
                 row["inside"][f"{n}@{lv}"] = inside
         if len(FREE) == 2:
-            ivals = grid_intervals(forward, y, {"diffuse": 0.0, "discrepancy": 0.0, **held}, levels)
+            ivals = grid_intervals(forward, y, {**extra_fixed, "discrepancy": 0.0, **held}, levels)
             for lv in levels:
                 for j, n in enumerate(FREE):
                     lo, hi = ivals[lv][j]
@@ -86,6 +116,7 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
                     grid_hits[lv][j] += inside
                     row["inside"][f"{n}@{lv}@grid"] = inside
         rows.append(row)
+        atomic_write_json(out / "partial.json", {"forward": forward_name, "free": list(FREE), "rows": rows})  # usable if interrupted
         print(f"dataset {i + 1}/{datasets}: χ²={best:.3g}, starts at best {same}/{fr.n_starts}, "
               f"inside90={[row['inside'][f'{n}@0.9'] for n in FREE]}, n_eff={post.n_eff:.0f} ({time.perf_counter() - t0:.0f} s)", flush=True)
     coverage = {}
@@ -97,8 +128,15 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
         if len(FREE) == 2:
             coverage[str(lv)]["grid_hits"] = dict(zip(FREE, grid_hits[lv].tolist()))
     recovered = [r for r in rows if r["lsq_chi2"] < 20.0]
+    if tracer:
+        model_text = ("data: direct ray-tracer runs (fresh arrays, array/ray seed 1000+i, "
+                      f"{direct.settings.rays} rays) + 0.3 L* noise; inference: tracer emulator, error_sd {np.round(forward.error_sd, 2).tolist()}")
+    else:
+        model_text = "analytic single scatter (AnalyticForward, rough platelets), diffuse 0; noise 0.3 L*"
     summary = {
-        "forward_model": "analytic single scatter (AnalyticForward, rough platelets), diffuse 0; noise 0.3 L*",
+        "forward_model": model_text,
+        "forward": forward_name,
+        "prior_box": {n: [float(spec.lower[j]), float(spec.upper[j])] for j, n in enumerate(spec.names)},
         "free": list(FREE), "held_at_truth": [k for k in ALL if k not in FREE],
         "datasets": datasets, "walkers": walkers, "steps": steps, "lsq_starts": starts, "seed": seed,
         "coverage": coverage,
@@ -111,6 +149,9 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
         "seconds": time.perf_counter() - t0,
         "rows": rows,
     }
+    if tracer:
+        summary["emulator"] = {k: v for k, v in build_info.items() if not k.startswith("seed_spread_L")}
+        summary["tracer_seconds"] = direct.seconds
     atomic_write_json(out / "summary.json", summary)
     plot(summary, out / "coverage.png")
     return summary
@@ -169,13 +210,19 @@ def main(argv=None):
     ap.add_argument("--walkers", type=int, default=16)
     ap.add_argument("--starts", type=int, default=4)
     ap.add_argument("--seed", type=int, default=2026)
-    ap.add_argument("--free", default="shape,scale", help="parameters inferred (others held at their true values)")
+    ap.add_argument("--free", help="parameters inferred (others held at their true values); default shape,scale "
+                                   "(analytic) or shape,scale,sigma,tau (tracer-emulator)")
+    ap.add_argument("--forward", default="analytic", choices=("analytic", "tracer-emulator"),
+                    help="analytic (data and inference from AnalyticForward) or tracer-emulator (data from the tracer)")
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", default=str(OUT))
+    ap.add_argument("--out", help=f"output folder (default {OUT} or {OUT_TRACER})")
     a = ap.parse_args(argv)
     if a.quick or os.environ.get("PAINTJAX_QUICK", "") not in ("", "0"):
         a.datasets, a.steps, a.walkers = 2, 100, 8
-    s = run(a.datasets, a.steps, a.walkers, a.starts, a.seed, Path(a.out), tuple(a.free.split(",")))
+    tracer = a.forward == "tracer-emulator"
+    free = a.free or ("shape,scale,sigma,tau" if tracer else "shape,scale")
+    out = Path(a.out or (OUT_TRACER if tracer else OUT))
+    s = run(a.datasets, a.steps, a.walkers, a.starts, a.seed, out, tuple(free.split(",")), a.forward)
     for lv, c in s["coverage"].items():
         print(f"coverage {float(lv):.0%}: MCMC {c['hits']}, exact grid {c.get('grid_hits')} of {c['datasets']} "
               f"(binomial 95 % range {c['binomial_95_range']})")

@@ -85,5 +85,9 @@ from ._forward import (
 )
 from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
 from ._posterior import LogPosterior, PosteriorResult, corner_plot, sample_posterior, save_netcdf
+from ._tracer_forward import TRACER_BOX, TracerLStar, TracerSettings, tracer_emulator
+from ._tracer_forward import register as _register_tracer_forward
+
+_register_tracer_forward()  # makes --forward tracer-emulator available
 
 __version__ = "0.1.0"

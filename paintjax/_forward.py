@@ -15,7 +15,8 @@ likelihood adds (zero for direct models, the held-out error for emulators). Impl
   optional `diffuse` parameter adds a Lambertian floor under the coat as a crude stand-in for the
   missing multiple scattering (off unless freed).
 * `CallableForward` – any Python callable (the ray tracer, with common random numbers, i.e. a
-  fixed key closed over so its output is a smooth function of θ). Not assumed jit-able.
+  fixed key closed over so its output is a smooth function of θ). Not assumed jit-able. The
+  tracer's callable and its registered emulator ("tracer-emulator") live in `_tracer_forward`.
 * `Emulator` – a Gaussian-process emulator (Matérn-5/2, ARD, one GP per angle) of any forward
   callable, trained on a scrambled-Sobol design in the parameters' unit cube, with its held-out
   RMS error measured on an independent Latin-hypercube set and exposed as `error_sd`. Built by
