@@ -178,7 +178,8 @@ def main(argv=None, forward_options: dict | None = None) -> dict:
     ap.add_argument("--variants", help="default single,diffuse (analytic) or tracer (tracer-emulator)")
     ap.add_argument("--samples", default="silver1,silver2")
     ap.add_argument("--walkers", type=int, default=32)
-    ap.add_argument("--max-steps", type=int, default=6000)
+    ap.add_argument("--max-steps", type=int, default=None,
+                    help="emcee step ceiling (default 6000 analytic, 20000 tracer-emulator, whose τ_int reaches ~220 steps: 50 τ needs ~11 000)")
     ap.add_argument("--min-ess", type=float, default=1000.0)
     ap.add_argument("--starts", type=int, default=8)
     ap.add_argument("--check-draws", type=int, default=8, help="tracer-emulator: direct tracer runs at this many posterior draws")
@@ -188,6 +189,8 @@ def main(argv=None, forward_options: dict | None = None) -> dict:
     if quick:
         args.walkers, args.max_steps, args.min_ess, args.starts = 12, 100, 0.0, 3
     tracer = args.forward == "tracer-emulator"
+    if args.max_steps is None:
+        args.max_steps = 20000 if tracer else 6000
     out = Path(args.out or (OUT_TRACER if tracer else OUT))
     variants = args.variants or ("tracer" if tracer else "single,diffuse")
     jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
