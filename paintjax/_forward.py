@@ -7,11 +7,11 @@ likelihood adds (zero for direct models, the held-out error for emulators). Impl
 
 * `AnalyticForward` – the analytic single-scatter model of `_microfacet` (milliseconds, jit and
   differentiable). Smooth (mirror) platelets, or rough platelets whose σ, τ enter through a
-  platelet BRDF. Until the tracer and the wave-based BRDF grid over (σ, τ) are wired in, the rough
-  BRDF is the *analytic* Kirchhoff (Beckmann–Spizzichino) BRDF of a Gaussian surface from
+  platelet BRDF. To stay jit-able and differentiable its rough BRDF is the *analytic* Kirchhoff (Beckmann–Spizzichino) BRDF of a Gaussian surface from
   `_beckmann` (coherent part exp(−(2kσ cosθ)²) as a mirror, incoherent lobe by quadrature), with
   σ, τ traced (`KirchhoffLobeBRDF`). No multiple scattering and no primer: far from specular
-  (75°, 110°) it predicts almost no light. The
+  (75°, 110°) it predicts almost no light (the ray tracer, with the wave-based BRDF grid, is the
+  forward model of `_tracer_forward`, "tracer-emulator"). The
   optional `diffuse` parameter adds a Lambertian floor under the coat as a crude stand-in for the
   missing multiple scattering (off unless freed).
 * `CallableForward` – any Python callable (the ray tracer, with common random numbers, i.e. a
@@ -164,7 +164,7 @@ class Restricted:
 
 
 # ------------------------------------------------------------------------------------------
-# Rough platelet BRDF with traced (σ, τ): analytic Kirchhoff, until the wave BRDF grid is wired in
+# Rough platelet BRDF with traced (σ, τ): analytic Kirchhoff (jit-able; the tracer forward uses the table grid)
 # ------------------------------------------------------------------------------------------
 def _metal_index(wavelength_um: float) -> complex:
     from ._aluminium import aluminium_index
