@@ -18,12 +18,10 @@ Monte Carlo estimate can be:
   (75°, 110°) spiky; CRN cannot remove those.
 * *Platelet BRDF.* σ and τ enter through the PCHIP-interpolated grid of platelet tables
   (`paintjax._brdf_table.platelet_brdf_grid`, log σ × log τ, built once per process and cached
-  table by table), so the BRDF is a C¹ function of (σ, τ). Default `table_source="kirchhoff"`: the
-  tables' 1-D lobes come from the closed-form Kirchhoff model rather than the wave solver, because
-  the wave-based tables did not build for σ ≥ 0.067 µm in this version of `_brdf_table`
-  (debiased coherent reflectance slightly negative at near-normal incidence, a ValueError), and
-  the box needs σ up to 0.15 µm. `TracerSettings(table_source="wave")` switches to the wave tables
-  where they build.
+  table by table), so the BRDF is a C¹ function of (σ, τ). Default `table_source="wave"`: the
+  hybrid model's wave-solver tables (30 tables, ≈ 1 min on 2 cores, cached). `"kirchhoff"` builds
+  the tables from closed-form 1-D Kirchhoff lobes instead (fast, used by the tests); those inherit
+  the Kirchhoff approximation's reflectance above 1 near grazing incidence.
 
 Otherwise the physics of `paintjax simulate --brdf wave` (flat clearcoat 50 µm, n = 1.5, primer
 albedo 0.3, PVC 20 %, the samples' size law, zero detector apertures), on a 400 µm tile (about
@@ -95,8 +93,8 @@ class TracerSettings:
             which the seed-to-seed spread measures).
         primer_albedo: Lambertian primer albedo.
         sigma_nodes, tau_nodes: (lower, upper, count) of the geometric BRDF-grid nodes [µm].
-        table_source: "kirchhoff" (1-D Kirchhoff lobes through the same table/grid machinery;
-            default, see the module docstring) or "wave" (the hybrid wave-based tables).
+        table_source: "wave" (default: the hybrid wave-based tables) or "kirchhoff" (1-D
+            Kirchhoff lobes through the same table/grid machinery; fast, for tests).
         lanes, batches: `TracerOptions` lanes per device and batch-means groups.
     """
 
@@ -107,7 +105,7 @@ class TracerSettings:
     primer_albedo: float = 0.3
     sigma_nodes: tuple[float, float, int] = (0.02, 0.09, 6)
     tau_nodes: tuple[float, float, int] = (0.45, 1.8, 5)
-    table_source: str = "kirchhoff"
+    table_source: str = "wave"
     lanes: int = 2048
     batches: int = 32
 
