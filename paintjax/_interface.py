@@ -142,6 +142,20 @@ def reflect(d: Float[Array, "... 3"], m: Float[Array, "... 3"]) -> Float[Array, 
     return d - 2.0 * jnp.sum(d * m, -1, keepdims=True) * m
 
 
+def seen_through_facet(w_air: Float[Array, "... 3"], m: Float[Array, "... 3"], n, sd) -> tuple[Float[Array, "... 3"], Float[Array, "..."]]:
+    """What an air direction w_air (pointing away from the coat) sees through facet m of a coat of index n.
+
+    Returns:
+        (ω_in, v T): the internal direction that refracts into w_air, pointing away from the layer
+        (unit), and the facet's visible weight times its Fresnel transmittance (Smith-normalised,
+        slope standard deviation `sd`).
+    """
+    from ._optics import fresnel_dielectric
+
+    t, cos_i = refract(-w_air, m, 1.0 / n)
+    return -t / jnp.linalg.norm(t, axis=-1, keepdims=True), visible_weight(w_air, m, sd) * (1.0 - fresnel_dielectric(cos_i, 1.0, n)[2])
+
+
 def gauss_hermite_facets(waviness_deg: float, nodes: int) -> tuple[np.ndarray, np.ndarray]:
     """Tensor Gauss–Hermite quadrature of the slope distribution: (normals (q, 3), weights (q,) summing to 1)."""
     if waviness_deg == 0.0:

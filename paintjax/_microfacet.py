@@ -24,7 +24,7 @@ from jaxtyping import Array, Float
 
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF
 from ._instrument import Geometry
-from ._interface import check_waviness, gauss_hermite_facets, refract, slope_sd, visible_weight
+from ._interface import check_waviness, gauss_hermite_facets, seen_through_facet, slope_sd
 from ._lightness import reflectance_factor_to_lightness
 from ._optics import fresnel_dielectric
 from ._tilt import MAX_TILT_DEG, GammaTilt
@@ -164,12 +164,10 @@ def _through_coat(w_air, facets, facet_w, n, sd):
 
     Returns directions (..., q_a·q, 3) pointing away from the layer and weights (..., q_a·q).
     """
-    wa = w_air[..., :, None, :]
-    t, cos_i = refract(-wa, facets, 1.0 / n)
-    T = 1.0 - fresnel_dielectric(cos_i, 1.0, n)[2]
-    weight = visible_weight(wa, facets, sd) * T * facet_w
+    w_in, vT = seen_through_facet(w_air[..., :, None, :], facets, n, sd)
+    weight = vT * facet_w
     shape = w_air.shape[:-1]
-    return (-t).reshape(*shape[:-1], -1, 3), weight.reshape(*shape[:-1], -1)
+    return w_in.reshape(*shape[:-1], -1, 3), weight.reshape(*shape[:-1], -1)
 
 
 def cone_directions(axis: Float[Array, "... 3"], half_angle_deg: float, nodes: int):

@@ -79,7 +79,7 @@ from jaxtyping import Array, Float, Int
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF
 from ._instrument import MAX_POLAR_DEG, Geometry
 from ._lightness import reflectance_factor_to_lightness
-from ._interface import check_waviness, reflect, refract, sample_facet_normal, sample_visible_facet, slope_sd, visible_weight
+from ._interface import check_waviness, reflect, refract, sample_facet_normal, sample_visible_facet, seen_through_facet, slope_sd
 from ._microfacet import _orthonormal_basis, check_coat_index
 from ._optics import fresnel_dielectric
 
@@ -412,13 +412,6 @@ def _new_ray_uniforms(sc: _Scene) -> int:
     return 7 if sc.wavy else 5
 
 
-def _facet(sc: _Scene, u1, u2, dtype):
-    """Clearcoat facet normal from two uniforms (the flat normal when the coat is flat)."""
-    if not sc.wavy:
-        return jnp.broadcast_to(jnp.array([0.0, 0.0, 1.0], dtype), jnp.shape(u1) + (3,))
-    return sample_facet_normal(sc.slope_sd, u1, u2)
-
-
 def _new_ray(sc: _Scene, u, dtype, randomize_azimuth: bool = True):
     """Position, direction, weight T, top reflection 1 − T and rotation (cos, sin) of a fresh ray from uniforms u.
 
@@ -510,10 +503,8 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     w_air = _cone(sc.det_air, sc.det_cos_alpha, uj[:, 0], uj[:, 1])
     w_air = _rotz(w_air, cph, sph)
     if sc.wavy:  # the detector sees the visible facets m_j: v_j T(m_j) L_in(refraction of ω_j at m_j) / n²
-        mj = _facet(sc, uf[2 : 2 + m], uf[2 + m : 2 + 2 * m], dtype)
-        t, cos_j = refract(-w_air, mj, 1.0 / sc.n)
-        w_in = -t / jnp.linalg.norm(t, axis=-1, keepdims=True)
-        To = visible_weight(w_air, mj, sc.slope_sd) * (1.0 - fresnel_dielectric(cos_j, 1.0, sc.n)[2])
+        mj = sample_facet_normal(sc.slope_sd, uf[2 : 2 + m], uf[2 + m : 2 + 2 * m])
+        w_in, To = seen_through_facet(w_air, mj, sc.n, sc.slope_sd)
         To = jnp.where(w_in[:, 2] > 1e-6, To, 0.0)
         w_in = w_in.at[:, 2].set(jnp.maximum(w_in[:, 2], 1e-6))
     else:

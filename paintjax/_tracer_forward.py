@@ -136,32 +136,10 @@ class TracerSettings:
 REFERENCE_TILT = (2.0, 1.5)
 
 
-def _truncated_gamma_cdf(tilt_deg, shape, scale):
-    from scipy.special import gammainc
-
-    return gammainc(shape, np.clip(tilt_deg, 0.0, 90.0) / scale) / gammainc(shape, 90.0 / scale)
-
-
 def _truncated_gamma_ppf(u, shape, scale):
     from scipy.special import gammainc, gammaincinv
 
     return np.clip(scale * gammaincinv(shape, np.clip(u, 1e-12, 1 - 1e-12) * gammainc(shape, 90.0 / scale)), 1e-9, 90.0)
-
-
-def _frame(tilt_rad, phi):
-    """In-plane unit vectors of a platelet with normal (tilt, azimuth): steepest descent e1, horizontal e2."""
-    ct, st, cp, sp = np.cos(tilt_rad), np.sin(tilt_rad), np.cos(phi), np.sin(phi)
-    e1 = np.stack([ct * cp, ct * sp, -st], -1)
-    e2 = np.stack([-sp, cp, np.zeros_like(sp)], -1)
-    return e1, e2
-
-
-def _half_extent(tilt_rad, phi, rot, w, t):
-    """Vertical half extent of the box centre ± (w/2)u ± (w/2)v ± (t/2)n."""
-    e1z = -np.sin(tilt_rad)
-    uz = np.cos(rot) * e1z
-    vz = -np.sin(rot) * e1z  # v = n × u; its z component is −sin(rot)·e1_z
-    return 0.5 * w * (np.abs(uz) + np.abs(vz)) + 0.5 * t * np.abs(np.cos(tilt_rad))
 
 
 class TracerLStar:
@@ -238,7 +216,7 @@ class TracerLStar:
         between boxes are not removed again. mode "rsa": a fresh array from the generator at θ
         (overlaps removed; what `paintjax simulate` uses, but jumps between nearby θ).
         """
-        from ._microstructure import PlateletArray, platelet_array_for_sample
+        from ._microstructure import PlateletArray, _frames, _tilt_cdf_np, _vertical_half_extent, platelet_array_for_sample
         from ._tilt import GammaTilt
 
         if mode == "rsa":
@@ -252,24 +230,24 @@ class TracerLStar:
         w, t, h_b = np.asarray(ref.widths, float), float(ref.thickness), float(ref.basecoat_thickness)
         tilt_ref = np.degrees(np.arccos(np.clip(normals[:, 2], -1.0, 1.0)))
         phi = np.arctan2(normals[:, 1], normals[:, 0])
-        e1, e2 = _frame(np.radians(tilt_ref), phi)
+        e1 = _frames(tilt_ref, phi, np.zeros_like(phi))[1]  # in-plane steepest descent (rotation 0)
+        e2 = _frames(tilt_ref, phi, np.full_like(phi, 0.5 * np.pi))[1]  # in-plane horizontal (rotation 90°)
         rot = np.arctan2(np.sum(axes_u * e2, 1), np.sum(axes_u * e1, 1))
-        u = _truncated_gamma_cdf(tilt_ref, *REFERENCE_TILT)
-        tilt = _truncated_gamma_ppf(u, float(shape), float(scale))
+
+        def half_extent(tilt_deg):  # vertical half extent of each box at these tilts (same azimuth, rotation)
+            return _vertical_half_extent(*_frames(tilt_deg, phi, rot), w, t)
+
+        tilt = _truncated_gamma_ppf(_tilt_cdf_np(GammaTilt(*REFERENCE_TILT), tilt_ref), float(shape), float(scale))
         # Largest tilt at which each box fits in the film (bisection on the vertical half extent).
-        fits = _half_extent(np.radians(tilt), phi, rot, w, t) <= 0.5 * h_b
+        fits = half_extent(tilt) <= 0.5 * h_b
         lo, hi = np.zeros_like(tilt), tilt.copy()
         for _ in range(50):
             mid = 0.5 * (lo + hi)
-            ok = _half_extent(np.radians(mid), phi, rot, w, t) <= 0.5 * h_b
+            ok = half_extent(mid) <= 0.5 * h_b
             lo, hi = np.where(ok, mid, lo), np.where(ok, hi, mid)
         tilt = np.where(fits, tilt, lo)
-        th = np.radians(tilt)
-        n_new = np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.cos(th)], 1)
-        f1, f2 = _frame(th, phi)
-        u_new = np.cos(rot)[:, None] * f1 + np.sin(rot)[:, None] * f2
-        hz_ref = _half_extent(np.radians(tilt_ref), phi, rot, w, t)
-        hz = _half_extent(th, phi, rot, w, t)
+        n_new, u_new = _frames(tilt, phi, rot)
+        hz_ref, hz = half_extent(tilt_ref), half_extent(tilt)
         rel = np.clip((centers[:, 2] - hz_ref) / np.maximum(h_b - 2 * hz_ref, 1e-12), 0.0, 1.0)
         c = centers.copy()
         c[:, 2] = hz + rel * (h_b - 2 * hz)
