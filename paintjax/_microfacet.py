@@ -26,7 +26,6 @@ from ._brdf import AbstractPlateletBRDF, MirrorBRDF
 from ._instrument import Geometry
 from ._interface import check_waviness, gauss_hermite_facets, seen_through_facet, slope_sd
 from ._lightness import reflectance_factor_to_lightness
-from ._optics import fresnel_dielectric
 from ._tilt import MAX_TILT_DEG, GammaTilt
 
 
