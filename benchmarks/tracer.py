@@ -46,7 +46,7 @@ def plain_tracer(sc, opt, key, rays: int, batch: int) -> float:
         u = T._uniforms(T._ray_hash(key, rid, jnp.asarray(0x7FFFFFFF, jnp.uint32)), T._new_ray_uniforms(sc), dtype)
         p0, d0, w0, _, c0, s0 = T._new_ray(sc, u, dtype)
         ray = (p0, d0, w0, jnp.asarray(True), c0, s0, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32), rid,
-               jnp.asarray(False), jnp.zeros(3, dtype), jnp.zeros((m, 3), dtype).at[:, 2].set(1.0), jnp.zeros(m, dtype), jnp.zeros(m, dtype))
+               jnp.asarray(False), jnp.zeros((), dtype), jnp.zeros(3, dtype), jnp.zeros((m, 3), dtype).at[:, 2].set(1.0), jnp.zeros(m, dtype), jnp.zeros(m, dtype))
         tally = jnp.zeros(2 * m + len(T.LEDGER_KEYS) + 1, dtype)
 
         def cond(c):

@@ -51,6 +51,10 @@ class AbstractPlateletBRDF(eqx.Module):
         """(ω_o, weight = f cosθ_o / pdf); weight 0 for samples below the plane."""
 
     @abc.abstractmethod
+    def pdf(self, wi: Float[Array, "... 3"], wo: Float[Array, "... 3"]) -> Float[Array, "..."]:
+        """Density per steradian with which `sample` returns ω_o, continuous part only (0 for a delta)."""
+
+    @abc.abstractmethod
     def albedo(self, cos_i: Float[Array, "..."]) -> Float[Array, "..."]:
         """Directional-hemispherical reflectance ∫ f cosθ_o dω_o."""
 
@@ -86,6 +90,8 @@ class MirrorBRDF(AbstractPlateletBRDF):
 
     def evaluate(self, wi, wo):
         return jnp.zeros(jnp.broadcast_shapes(wi.shape, wo.shape)[:-1])
+
+    pdf = evaluate  # a delta has no continuous part
 
     def sample(self, key, wi):
         normal = jnp.zeros_like(wi).at[..., 2].set(1.0)

@@ -199,6 +199,8 @@ class CoherentMirrorBRDF(AbstractPlateletBRDF):
     def evaluate(self, wi, wo):
         return jnp.zeros(jnp.broadcast_shapes(wi.shape, wo.shape)[:-1])
 
+    pdf = evaluate  # a delta has no continuous part
+
     def sample(self, key, wi):
         normal = jnp.zeros_like(wi).at[..., 2].set(1.0)
         return 2.0 * wi[..., 2:3] * normal - wi, self.albedo(wi[..., 2])
@@ -244,6 +246,9 @@ class AbstractTracedLobeBRDF(AbstractPlateletBRDF):
         self.metal_index = _metal_index(wavelength_um) if metal_index is None else complex(metal_index)
 
     def sample(self, key, wi):  # not needed by the analytic model
+        raise NotImplementedError(f"{type(self).__name__} is evaluated by quadrature only; use _beckmann.BeckmannBRDF to sample")
+
+    def pdf(self, wi, wo):  # not needed by the analytic model
         raise NotImplementedError(f"{type(self).__name__} is evaluated by quadrature only; use _beckmann.BeckmannBRDF to sample")
 
     def albedo(self, cos_i):

@@ -107,6 +107,9 @@ class TracerOptions(eqx.Module):
         edges: "scatter" (default): a ray entering a platelet through a side face is scattered by
             the platelet BRDF about that face's normal (aluminium side walls); "absorb": side
             faces absorb (dark, broken edges; also the thin-platelet limit of the analytic model).
+        mis: with finite detector apertures and a flat coat, combine NEE with the BRDF-sampled
+            exits into each aperture by multiple importance sampling (balance heuristic);
+            False: NEE alone (the histogram is always reported on its own as well).
         float64: trace in float64 when x64 is enabled (default float32 geometry, which is ample
             for µm-scale boxes in a sub-mm tile and twice as fast; tallies are float64 under x64).
     """
@@ -122,6 +125,7 @@ class TracerOptions(eqx.Module):
     shadow_roulette: float = eqx.field(static=True, default=0.02)
     shadow_buffer: float = eqx.field(static=True, default=0.25)
     edges: str = eqx.field(static=True, default="scatter")
+    mis: bool = eqx.field(static=True, default=True)
 
     def __check_init__(self):
         for name, v, lo in (("lanes", self.lanes, 1), ("steps_per_call", self.steps_per_call, 1),
@@ -201,6 +205,7 @@ class _Scene(eqx.Module):
     max_cells: int = eqx.field(static=True)  # budget of a ray's step
     shadow_cells: int = eqx.field(static=True)  # budget of a shadow ray (always enough)
     wavy: bool = eqx.field(static=True, default=False)  # draw facet normals at the clearcoat surface
+    mis: bool = eqx.field(static=True, default=False)  # NEE + BRDF-sampled exits, balance heuristic
 
 
 def _bucket(x: int, q: int) -> int:
@@ -435,6 +440,12 @@ def _new_ray(sc: _Scene, u, dtype, randomize_azimuth: bool = True):
     return cast(pos), cast(d), cast(1.0 - Ri), cast(Ri), cast(c), cast(s)
 
 
+def _exit_density(q_in, cos_air, cos_in, n):
+    """Density per air steradian of an exit direction whose internal direction had density q_in
+    per internal steradian (refraction: n² cosθ_in dω_in = cosθ_air dω_air)."""
+    return q_in * cos_air / (n**2 * jnp.maximum(cos_in, 1e-12))
+
+
 def _has_delta(brdf) -> bool:
     """Whether the BRDF's sampler can return its delta (mirror) direction with finite weight."""
     return bool(brdf.is_delta) or getattr(brdf, "coherent", None) == "delta"
@@ -442,7 +453,7 @@ def _has_delta(brdf) -> bool:
 
 def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     """Advance one lane by one step: its pending shadow rays and its ray. Returns (lane, tally)."""
-    pos, d, w, alive, cph, sph, nstep, nev, rid, spec_last, sh_org, sh_dir, sh_lim, sh_val = ray
+    pos, d, w, alive, cph, sph, nstep, nev, rid, spec_last, q_last, sh_org, sh_dir, sh_lim, sh_val = ray
     dtype = pos.dtype
     m = sc.det_air.shape[0]
     has_delta = _has_delta(sc.brdf)
@@ -494,6 +505,9 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
         spec = hit & (jnp.sum((wo_loc - mirror) ** 2) < 1e-8)
     else:
         spec = jnp.zeros((), bool)
+    omega = 2.0 * jnp.pi * (1.0 - sc.det_cos_alpha)  # detector cone solid angle (0: point detectors)
+    if sc.mis:  # sampling density of the new direction per internal steradian (continuous branches)
+        q_ev = jnp.where(hit, sc.brdf.pdf(wi_loc, wo_loc).astype(dtype), wo_pr[2] / jnp.pi)
 
     # --- next-event estimation: this event's shadow rays are traced in the next step
     origin = x_ev + sc.eps * n_ev
@@ -515,6 +529,9 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     f = jnp.where(hit, f_pl, sc.albedo / jnp.pi)
     cos_o = jnp.maximum(wo_loc_j[:, 2], 0.0)
     val = jnp.pi * w * f * cos_o * To / (sc.n**2 * w_in[:, 2])
+    if sc.mis:  # balance heuristic against the BRDF-sampled exit into the same cone direction
+        q_j = jnp.where(hit, sc.brdf.pdf(jnp.broadcast_to(wi_loc, (m, 3)), wo_loc_j).astype(dtype), w_in[:, 2] / jnp.pi)
+        val = val / (1.0 + omega * _exit_density(q_j, w_air[:, 2], w_in[:, 2], sc.n))
     score = event & (first | ~single)
     if opt.edges == "absorb":
         score = score & ~(hit & side)
@@ -544,12 +561,17 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
         d_ref = d * jnp.array([1.0, 1.0, -1.0], dtype)
     w_exit = jnp.where(top, w * (1.0 - Rint), 0.0)
     ex_inst = _rotz(ex_air, cph, -sph)
-    omega = 2.0 * jnp.pi * (1.0 - sc.det_cos_alpha)
     inside = (jnp.sum(sc.det_air * ex_inst[None], -1) >= sc.det_cos_alpha) & (omega > 0)
     hist = jnp.where(inside & (w_exit > 0), jnp.pi * w_exit / (jnp.maximum(omega, 1e-30) * jnp.maximum(ex_inst[2], 1e-12)), 0.0)
-    # paths whose last event was a delta reflection: the exiting weight is the splat of the
-    # deterministic direction into the aperture (NEE cannot see a delta)
-    nee = jnp.where(spec_last & (~single | (nev <= 1)), hist, 0.0)
+    # the exit's share of the estimate: all of it after a delta reflection (the splat of the
+    # deterministic direction into the aperture; NEE cannot see a delta), the balance-heuristic
+    # share 1 − (NEE's) after a continuous one under MIS, none otherwise
+    if sc.mis:
+        pb = omega * _exit_density(q_last, ex_air[2], cz, sc.n)
+        share = jnp.where(spec_last, 1.0, pb / (1.0 + pb))
+    else:
+        share = spec_last.astype(dtype)
+    nee = jnp.where(~single | (nev <= 1), share * hist, 0.0)
 
     # --- new state and ledger
     new_w = jnp.where(event, w * factor, jnp.where(top, w * Rint, w))
@@ -566,7 +588,9 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     # second event (uncounted, cut before scattering) or at the internal reflection after the
     # first event
     second = event & (nev >= 1)
-    cut = single & alive & (second | (top & (nev >= 1)) | (event & first & ~spec))
+    # (under MIS the first event's ray goes on to its exit, which carries part of the estimate)
+    early = jnp.zeros((), bool) if sc.mis else event & first & ~spec
+    cut = single & alive & (second | (top & (nev >= 1)) | early)
     w_cut = jnp.where(cut, jnp.where(second, w, new_w), 0.0)
     absorbed_pl = jnp.where(cut & second, 0.0, absorbed_pl)
     absorbed_pr = jnp.where(cut & second, 0.0, absorbed_pr)
@@ -592,7 +616,8 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     tally = jnp.concatenate([nee, hist, ledger, jnp.zeros(1, dtype)])
     keep_sh = alive & event
     new_ray = (new_pos.astype(dtype), new_d.astype(dtype), jnp.where(alive2, new_w, 0.0).astype(dtype), alive2, cph, sph,
-               nstep2, nev + event.astype(nev.dtype), rid, jnp.where(event, spec, spec_last), origin.astype(dtype), new_sh_dir,
+               nstep2, nev + event.astype(nev.dtype), rid, jnp.where(event, spec, spec_last),
+               jnp.where(event, q_ev, q_last).astype(dtype) if sc.mis else q_last, origin.astype(dtype), new_sh_dir,
                new_sh_lim, jnp.where(keep_sh, new_sh_val, 0.0))
     return new_ray, tally
 
@@ -642,7 +667,7 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
 
     def one_step(_, st):
         rays, tally, next_local = st
-        pos, d, w, alive, cph, sph, nstep, nev, rid, spec, *sh = rays
+        pos, d, w, alive, cph, sph, nstep, nev, rid, spec, q_last, *sh = rays
         dtype = pos.dtype
         dead = ~alive
         rank = jnp.cumsum(dead.astype(idt)) - 1
@@ -664,7 +689,7 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
         nee = _shadows(sc, opt, *sh)
         tally = tally.at[:, : nee.shape[1]].add(nee.astype(tally.dtype))
         kstep = jax.vmap(lambda r, t: _ray_hash(key, r, t))(rid, nstep)
-        rays = (pos, d, w, alive, cph, sph, nstep, nev, rid, spec, *sh)
+        rays = (pos, d, w, alive, cph, sph, nstep, nev, rid, spec, q_last, *sh)
         rays, inc = jax.vmap(lambda r, k: _step_one(sc, opt, r, k, single))(rays, kstep)
         return rays, tally + inc.astype(tally.dtype), next_local
 
@@ -694,7 +719,7 @@ def _initial_state(lanes_total: int, ndev: int, m: int, dtype, tdtype, idt):
     z = lambda *s, t=dtype: jnp.zeros(s, t)  # noqa: E731
     L = lanes_total
     rays = (z(L, 3), z(L, 3), z(L), jnp.zeros(L, bool), z(L), z(L), jnp.zeros(L, jnp.int32), jnp.zeros(L, jnp.int32),
-            jnp.zeros(L, idt), jnp.zeros(L, bool), z(L, 3), jnp.zeros((L, m, 3), dtype).at[..., 2].set(1.0), z(L, m), z(L, m))
+            jnp.zeros(L, idt), jnp.zeros(L, bool), z(L), z(L, 3), jnp.zeros((L, m, 3), dtype).at[..., 2].set(1.0), z(L, m), z(L, m))
     tally = z(L, 2 * m + len(LEDGER_KEYS) + 1, t=tdtype)
     return rays, tally, jnp.zeros(ndev, idt)
 
@@ -727,7 +752,7 @@ def _check_range(name, value, lo, hi, lo_open=False):
 
 
 def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, n: float, clearcoat_thickness: float,
-                primer_albedo: float, waviness_deg: float = 0.0, dtype=jnp.float32, min_cells: int = 2) -> _Scene:
+                primer_albedo: float, waviness_deg: float = 0.0, dtype=jnp.float32, min_cells: int = 2, mis: bool = True) -> _Scene:
     """Pack an array, its grid, the BRDF and the instrument into the tracer's device scene.
 
     Platelet and cell tables are padded to bucketed sizes and the grid dimensions are traced
@@ -768,6 +793,7 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
         max_cells=int(min_cells),
         shadow_cells=_shadow_cell_bound(shape, cell, h_b, float(n)),
         wavy=waviness_deg > 0.0,
+        mis=bool(mis) and geometry.detector_aperture_deg > 0.0 and not waviness_deg > 0.0,
     )
 
 
@@ -865,7 +891,7 @@ def trace(
         raise ValueError("grid.overflow is set: some cell exceeded its capacity; rebuild the grid with a larger capacity")
     cdt = jnp.float64 if (opt.float64 and jax.config.jax_enable_x64) else jnp.float32
     sc = build_scene(array, geometry, brdf, grid, n=n, clearcoat_thickness=clearcoat_thickness, primer_albedo=primer_albedo,
-                     waviness_deg=waviness_deg, dtype=cdt, min_cells=opt.cells_per_step)
+                     waviness_deg=waviness_deg, dtype=cdt, min_cells=opt.cells_per_step, mis=opt.mis)
     devices = jax.local_devices()
     ndev = len(devices)
     mesh = Mesh(np.array(devices), ("rays",))

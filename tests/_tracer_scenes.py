@@ -103,5 +103,9 @@ class LambertPlateletBRDF(AbstractPlateletBRDF):
         wo = jnp.stack([r * jnp.cos(ph), r * jnp.sin(ph), jnp.sqrt(1 - u[..., 0])], -1)
         return wo, jnp.broadcast_to(self.a, wi.shape[:-1]).astype(wi.dtype)
 
+    def pdf(self, wi, wo):
+        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        return jnp.where(ok, wo[..., 2] / jnp.pi, 0.0).astype(wi.dtype)
+
     def albedo(self, cos_i):
         return jnp.broadcast_to(self.a, jnp.shape(cos_i))

@@ -117,6 +117,8 @@ class _NarrowLobe(pj.AbstractPlateletBRDF):
     def sample(self, key, wi):
         raise NotImplementedError
 
+    pdf = sample
+
     def albedo(self, cos_i):
         return jnp.ones_like(cos_i)
 
