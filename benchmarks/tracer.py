@@ -6,10 +6,12 @@ count, warm); (3) the same physics in a plain `vmap(while_loop)` tracer — ever
 ray to the end, shadow rays inline without compaction — as the straightforward alternative, as a
 rays-per-second ratio. Goals: time-to-precision ≤ 60 s on the 2-core CPU (≤ 2 s on one H100).
 
-`--coherent-width-factor F` widens the platelets' coherent diffraction lobe F× (a variance
+`--detector-aperture A` gives the detectors cones of half-angle A (MIS of NEE and exits into the
+cone unless `--no-mis`). `--coherent-width-factor F` widens the platelets' coherent diffraction lobe F× (a variance
 diagnostic, not physics); `--target-se 0` and `--plain-rays 0` skip those runs.
 
-Usage: python benchmarks/tracer.py [--rays 65536] [--target-se 0.3] [--plain-rays 8192] [--coherent-width-factor 1] [--json]
+Usage: python benchmarks/tracer.py [--rays 65536] [--target-se 0.3] [--plain-rays 8192] [--coherent-width-factor 1]
+       [--detector-aperture 0] [--no-mis] [--json]
 """
 
 from __future__ import annotations
@@ -78,6 +80,8 @@ def main() -> int:
     ap.add_argument("--max-rays", type=int, default=2_000_000)
     ap.add_argument("--plain-rays", type=int, default=8192)
     ap.add_argument("--coherent-width-factor", type=float, default=1.0)
+    ap.add_argument("--detector-aperture", type=float, default=0.0, help="detector cone half-angle [deg] (default 0: point detectors)")
+    ap.add_argument("--no-mis", action="store_true", help="NEE alone at finite apertures (default: MIS with BRDF-sampled exits)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
@@ -93,8 +97,8 @@ def main() -> int:
 
         width = args.coherent_width_factor * coherent_lobe_width(0.5, s.binder_index, 16.0)
         brdf = platelet_brdf_table(s.sigma.value, s.tau.value, n_medium=s.binder_index, coherent_width=width)
-    geo = ma98_geometry(45.0)
-    opt = T.TracerOptions()
+    geo = ma98_geometry(45.0, detector_aperture_deg=args.detector_aperture)
+    opt = T.TracerOptions(mis=not args.no_mis)
     kw = dict(grid=grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness, options=opt)
 
     t0 = time.perf_counter()
@@ -128,6 +132,8 @@ def main() -> int:
         "L_star": res.L_star.tolist(),
         "L_star_se": res.L_star_se.tolist(),
         "coherent_width_factor": args.coherent_width_factor,
+        "detector_aperture_deg": args.detector_aperture,
+        "mis": not args.no_mis and args.detector_aperture > 0,
         "ttp_target_se": args.target_se,
         "ttp_rays": None if ttp is None else ttp.rays,
         "ttp_seconds": None if ttp is None else ttp.seconds,
