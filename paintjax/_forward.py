@@ -21,7 +21,10 @@ likelihood adds (zero for direct models, the held-out error for emulators). Impl
   callable, trained on a scrambled-Sobol design in the parameters' unit cube, with its held-out
   RMS error measured on an independent Latin-hypercube set and exposed as `error_sd`. Built by
   `build_emulator`, cached on disk under a content-hashed key (atomic writes; the expensive design
-  evaluations are check-pointed so an interrupted build resumes).
+  evaluations are check-pointed so an interrupted build resumes). Optionally physics-informed: a
+  cheap `mean` model (the tracer emulator uses the analytic single-scatter model) gives a linear
+  prior mean per angle and, at chosen angles, extra GP inputs; the GP then learns only what the
+  cheap model misses.
 """
 
 from __future__ import annotations
@@ -51,7 +54,8 @@ from ._optics import coat_internal_diffuse_reflectance, fresnel_conductor, fresn
 from ._parameters import ParameterSpec, get_parameter
 from ._tilt import GammaTilt
 
-EMULATOR_VERSION = 1
+EMULATOR_VERSION = 1  # meaning of the cached design evaluations (bump to re-run them)
+EMULATOR_FIT_VERSION = 2  # meaning of the fit on top of them (a change only re-fits, from the cached design)
 
 
 # ------------------------------------------------------------------------------------------
@@ -512,9 +516,10 @@ class Emulator(ForwardModel):
 
     Inputs are the parameters of `spec` (physical units); outside the box they are clipped.
     `error_sd` is the held-out RMS error per angle, `held_out_max` the largest held-out error.
+    With a `mean_model`, L* = c₀ + c₁·L*_mean + GP([unit θ, standardised L*_mean at `mean_features`]).
     """
 
-    X: Float[Array, "n p"]
+    X: Float[Array, "n q"]
     alpha: Float[Array, "m n"]
     hyper: Float[Array, "m q"]
     y_mean: Float[Array, " m"]
@@ -525,6 +530,15 @@ class Emulator(ForwardModel):
     held_out_max: float = eqx.field(static=True)
     source: str = eqx.field(static=True)
     key: str = eqx.field(static=True)
+    mean_model: "ForwardModel | None" = None
+    mean_cols: tuple[int, ...] = eqx.field(static=True, default=())
+    mean_vals: tuple[float, ...] = eqx.field(static=True, default=())
+    mean_features: tuple[int, ...] = eqx.field(static=True, default=())
+    mean_coef: Float[Array, "m 2"] | None = None
+    feature_shift: Float[Array, " f"] | None = None
+    feature_scale: Float[Array, " f"] | None = None
+    held_out_loo_rms: tuple[float, ...] = eqx.field(static=True, default=())
+    fit_id: str = eqx.field(static=True, default="")
 
     @property
     def parameter_names(self):
@@ -539,17 +553,27 @@ class Emulator(ForwardModel):
         return np.asarray(self.held_out_rms)
 
     def fingerprint(self):
-        return f"Emulator({self.key})"
+        return f"Emulator({self.key},{hashlib.sha256(self.fit_id.encode()).hexdigest()[:12]})"
 
     def evaluate(self, theta):
         z = jnp.clip(self.spec.to_unit(theta), 0.0, 1.0)
-        p = z.shape[-1]
+        prior = 0.0
+        if self.mean_model is not None:
+            a = self.mean_model.evaluate(_assemble(self.spec.from_unit(z), self.mean_cols, self.mean_vals))
+            prior = self.mean_coef[:, 0] + self.mean_coef[:, 1] * a
+            z = jnp.concatenate([z, (a[:, list(self.mean_features)] - self.feature_shift) / self.feature_scale], axis=-1)
+        q = z.shape[-1]
 
         def one(h, a):
-            return _matern52(z, self.X, h[:p], h[p]) @ a
+            return _matern52(z, self.X, h[:q], h[q]) @ a
 
-        mean = jax.vmap(one, out_axes=1)(self.hyper, self.alpha)
-        return self.y_mean + self.y_std * mean
+        gp = jax.vmap(one, out_axes=1)(self.hyper, self.alpha)
+        return prior + self.y_mean + self.y_std * gp
+
+
+def _assemble(x, cols, vals):
+    """Full parameter vectors of a restricted model: column c of x, or the fixed value where c < 0."""
+    return jnp.stack([x[..., c] if c >= 0 else jnp.full(x.shape[:-1], v, dtype=x.dtype) for c, v in zip(cols, vals)], axis=-1)
 
 
 def _sobol(n: int, d: int, seed: int) -> np.ndarray:
@@ -613,6 +637,8 @@ def build_emulator(
     batch: int = 64,
     aspecular_deg=None,
     progress: bool = False,
+    mean: "Restricted | None" = None,
+    mean_features: Sequence[int] = (),
 ) -> Emulator:
     """Train (or load from cache) a GP emulator of `fn` over the box of `spec`.
 
@@ -635,6 +661,10 @@ def build_emulator(
         batch: evaluations per call of `fn`.
         aspecular_deg: output angles (defaults to those of `fn` or the five standard ones).
         progress: show a progress bar over the design.
+        mean: optional cheap, jit-able model of the same parameters (a `Restricted`): the GP then
+            emulates fn − (c₀ + c₁·mean) per angle, with the mean's L* at `mean_features` (output
+            columns) as extra inputs. Changing it re-fits from the cached design, no new fn calls.
+        mean_features: output columns of `mean` used as GP inputs.
 
     Returns:
         An `Emulator` (a `ForwardModel` over `spec.names`).
@@ -655,35 +685,81 @@ def build_emulator(
     if cache_dir == "default":
         cache_dir = default_cache_dir() / "emulators"
     path = None if cache_dir is None else Path(cache_dir) / f"emulator-{key}.npz"
+    mean_id = "none" if mean is None else f"{mean.fingerprint()}|features={list(mean_features)}"
+    fit_id = f"v{EMULATOR_FIT_VERSION}|{mean_id}"
+    arrays = None
     if path is not None and path.exists():
         with np.load(path) as d:
             arrays = {k: np.array(d[k]) for k in d.files}
-        return _emulator_from_arrays(arrays, spec, angles, source, key)
-    t0 = time.perf_counter()
-    Z = _sobol(n_train, len(spec), seed)
-    Zt = _lhs(n_test, len(spec), seed + 1)
-    ckpt = None if path is None else path.with_suffix(".partial.npz")
-    Yall = _evaluate_design(fn, np.concatenate([Z, Zt]), spec, batch, ckpt, progress)
-    Y, Yt = Yall[:n_train], Yall[n_train:]
-    if not np.all(np.isfinite(Yall)):
-        raise ValueError("the forward callable returned non-finite L* on the design; narrow the parameter bounds")
-    t_design = time.perf_counter() - t0
-    y_mean, y_std = Y.mean(0), Y.std(0) + 1e-12
-    hyper, alpha = _fit_gp(jnp.asarray(Z), jnp.asarray((Y - y_mean) / y_std))
-    arrays = dict(X=Z, alpha=np.asarray(alpha), hyper=np.asarray(hyper), y_mean=y_mean, y_std=y_std, Zt=Zt, Yt=Yt, Y=Y,
-                  design_seconds=t_design, train_seconds=time.perf_counter() - t0 - t_design)
-    em = _emulator_from_arrays(arrays | dict(held_out_rms=np.zeros(Y.shape[1]), held_out_max=0.0), spec, angles, source, key)
-    err = np.asarray(em(np.asarray(spec.from_unit(Zt)))) - Yt
-    arrays["held_out_rms"] = np.sqrt(np.mean(err**2, axis=0))
-    arrays["held_out_max"] = float(np.max(np.abs(err)))
+        if str(arrays.get("fit_id", "")) == fit_id:
+            return _emulator_from_arrays(arrays, spec, angles, source, key, mean, mean_features)
+        if "Z" not in arrays and "X" in arrays:  # files of fit version 1 stored the design as X
+            arrays["Z"] = arrays["X"]
+        arrays = {k: arrays[k] for k in ("Z", "Y", "Zt", "Yt", "design_seconds") if k in arrays}  # re-fit the cached design
+    if arrays is None or "Z" not in arrays:
+        t0 = time.perf_counter()
+        Z = _sobol(n_train, len(spec), seed)
+        Zt = _lhs(n_test, len(spec), seed + 1)
+        ckpt = None if path is None else path.with_suffix(".partial.npz")
+        Yall = _evaluate_design(fn, np.concatenate([Z, Zt]), spec, batch, ckpt, progress)
+        if not np.all(np.isfinite(Yall)):
+            raise ValueError("the forward callable returned non-finite L* on the design; narrow the parameter bounds")
+        arrays = dict(Z=Z, Y=Yall[:n_train], Zt=Zt, Yt=Yall[n_train:], design_seconds=time.perf_counter() - t0)
+    else:
+        ckpt = None
+    arrays = arrays | _fit_emulator(arrays["Z"], arrays["Y"], arrays["Zt"], arrays["Yt"], spec, mean, mean_features, angles, source, key)
+    arrays["fit_id"] = np.array(fit_id)
     if path is not None:
         atomic_savez(path, **arrays)
         if ckpt is not None and ckpt.exists():
             ckpt.unlink()
-    return _emulator_from_arrays(arrays, spec, angles, source, key)
+    return _emulator_from_arrays(arrays, spec, angles, source, key, mean, mean_features)
 
 
-def _emulator_from_arrays(a: dict, spec, angles, source, key) -> Emulator:
+def _mean_inputs(spec, mean, mean_features, Z):
+    """(L* of the mean model at the unit-cube points Z, the columns used as features)."""
+    a = np.asarray(mean.model.evaluate(_assemble(jnp.asarray(spec.from_unit(Z)), tuple(mean._cols), tuple(mean._vals))))
+    return a, a[:, list(mean_features)]
+
+
+def _fit_emulator(Z, Y, Zt, Yt, spec, mean, mean_features, angles, source, key) -> dict:
+    """GP fit (with the optional physics-informed mean) and its held-out and leave-one-out errors."""
+    t0 = time.perf_counter()
+    out = {}
+    X, target = Z, Y
+    if mean is not None:
+        a, f = _mean_inputs(spec, mean, mean_features, Z)
+        coef = np.stack([np.linalg.lstsq(np.c_[np.ones(len(a)), a[:, k]], Y[:, k], rcond=None)[0] for k in range(Y.shape[1])])
+        shift, scale = f.mean(0), f.std(0) + 1e-9
+        X = np.concatenate([Z, (f - shift) / scale], axis=1)
+        target = Y - (coef[:, 0] + coef[:, 1] * a)
+        out |= dict(mean_coef=coef, feature_shift=shift, feature_scale=scale)
+    y_mean, y_std = target.mean(0), target.std(0) + 1e-12
+    hyper, alpha = _fit_gp(jnp.asarray(X), jnp.asarray((target - y_mean) / y_std))
+    out |= dict(X=X, alpha=np.asarray(alpha), hyper=np.asarray(hyper), y_mean=y_mean, y_std=y_std,
+                loo_rms=_loo_rms(X, (target - y_mean) / y_std, np.asarray(hyper)) * y_std)
+    em = _emulator_from_arrays(out | dict(held_out_rms=np.zeros(Y.shape[1]), held_out_max=0.0), spec, angles, source, key, mean, mean_features)
+    err = np.asarray(em(np.asarray(spec.from_unit(Zt)))) - Yt
+    out["held_out_rms"] = np.sqrt(np.mean(err**2, axis=0))
+    out["held_out_max"] = float(np.max(np.abs(err)))
+    out["train_seconds"] = time.perf_counter() - t0
+    return out
+
+
+def _loo_rms(X, Ys, hyper) -> np.ndarray:
+    """Leave-one-out RMS error of each standardised output column (closed form, α_i / (K⁻¹)_ii)."""
+    q = X.shape[1]
+    rms = []
+    for k in range(Ys.shape[1]):
+        h = hyper[k]
+        K = np.asarray(_matern52(jnp.asarray(X), jnp.asarray(X), h[:q], h[q])) + (np.exp(2.0 * h[q + 1]) + 1e-8) * np.eye(len(X))
+        Ki = np.linalg.inv(K)
+        rms.append(np.sqrt(np.mean((Ki @ Ys[:, k] / np.diag(Ki)) ** 2)))
+    return np.asarray(rms)
+
+
+def _emulator_from_arrays(a: dict, spec, angles, source, key, mean=None, mean_features=()) -> Emulator:
+    opt = lambda k: None if mean is None else jnp.asarray(a[k])  # noqa: E731
     return Emulator(
         X=jnp.asarray(a["X"]),
         alpha=jnp.asarray(a["alpha"]),
@@ -696,6 +772,15 @@ def _emulator_from_arrays(a: dict, spec, angles, source, key) -> Emulator:
         held_out_max=float(a["held_out_max"]),
         source=source,
         key=key,
+        mean_model=None if mean is None else mean.model,
+        mean_cols=() if mean is None else tuple(int(c) for c in mean._cols),
+        mean_vals=() if mean is None else tuple(float(v) for v in mean._vals),
+        mean_features=tuple(int(i) for i in mean_features) if mean is not None else (),
+        mean_coef=opt("mean_coef"),
+        feature_shift=opt("feature_shift"),
+        feature_scale=opt("feature_scale"),
+        held_out_loo_rms=tuple(float(v) for v in np.asarray(a.get("loo_rms", ()))),
+        fit_id=str(a.get("fit_id", "")),
     )
 
 

@@ -338,6 +338,9 @@ def seed_spread(fn: TracerLStar, theta: Sequence[Sequence[float]], seeds: Sequen
 #: θ rows and seeds of the seed-spread measurement of the registered model (inside `TRACER_BOX`:
 #: a well-aligned and a poorly aligned paint, moderate roughness); seeds differ from the CRN seed 0.
 SPREAD_THETA = ((2.0, 1.5, 0.06, 0.7), (4.0, 2.5, 0.09, 0.5))
+#: Output columns (15°, 25°, 45°) of the analytic single-scatter model used as extra GP inputs of the
+#: tracer emulator: there single scattering carries the signal; at 75°/110° it predicts almost nothing.
+ANALYTIC_FEATURES = (0, 1, 2)
 SPREAD_SEEDS = (101, 102, 103, 104, 105)
 
 
@@ -355,6 +358,7 @@ def tracer_emulator(
     spread_theta=SPREAD_THETA,
     spread_seeds=SPREAD_SEEDS,
     progress: bool = False,
+    analytic_mean: bool = True,
     **kw,
 ):
     """Factory of the registered ``"tracer-emulator"``: a GP emulator of `TracerLStar` (cached).
@@ -371,11 +375,14 @@ def tracer_emulator(
         spread_theta, spread_seeds: where and with which seeds the seed-to-seed spread is measured
             (None: not measured, `error_sd` is the held-out RMS alone).
         progress: progress bar over the design and one line per tracer run.
+        analytic_mean: physics-informed GP (default): the analytic single-scatter model
+            (`AnalyticForward`, diffuse 0) is the linear prior mean per angle and its L* at 15°,
+            25°, 45° (`ANALYTIC_FEATURES`) are extra GP inputs; False: a plain GP over θ.
 
     Returns:
         `TracerEmulator` (an `Emulator` whose `error_sd` includes the seed-to-seed spread).
     """
-    from ._forward import CallableForward, build_emulator
+    from ._forward import AnalyticForward, CallableForward, build_emulator
     from ._parameters import make_spec
 
     names = tuple(n for n in free if n in TRACER_PARAMETERS)
@@ -390,7 +397,9 @@ def tracer_emulator(
     held = {n: fixed.get(n, math.sqrt(TRACER_BOX[n][0] * TRACER_BOX[n][1])) for n in TRACER_PARAMETERS if n not in names}
     model = CallableForward(fn, TRACER_PARAMETERS, fn.settings.identity()).restrict(names, held)
     t0 = time.perf_counter()
-    em = build_emulator(model, spec, n_train=n_train, n_test=n_test, seed=seed, cache_dir=cache_dir, batch=batch, progress=progress)
+    mean = AnalyticForward().restrict(names, held | {"diffuse": 0.0}) if analytic_mean else None
+    em = build_emulator(model, spec, n_train=n_train, n_test=n_test, seed=seed, cache_dir=cache_dir, batch=batch, progress=progress,
+                        mean=mean, mean_features=ANALYTIC_FEATURES if analytic_mean else ())
     build_seconds = time.perf_counter() - t0
     spread = None
     if spread_theta is not None:
