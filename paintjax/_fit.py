@@ -30,6 +30,8 @@ from ._forward import ForwardModel, Restricted, _jit_evaluate
 from ._parameters import ParameterSpec, make_spec
 
 INSTRUMENT_SD = 0.3
+#: |u| beyond which a parameter counts as at the edge of its box (unit-cube coordinate within 1e-4 of 0 or 1).
+_U_EDGE = float(np.log(1e4 - 1.0))
 
 
 @dataclasses.dataclass
@@ -222,13 +224,15 @@ def fit_least_squares(
         u_all, codes = solve(jnp.asarray(u0), args)
         u_all, codes = np.asarray(u_all), np.asarray(codes).reshape(-1)
         r_all = np.asarray(jax.vmap(residual, in_axes=(0, None))(jnp.asarray(u_all), args))
+        # Jacobians are taken at u clipped to the edge band: at a boundary optimum (u → ±∞) the
+        # logit map's derivative underflows to 0 and ∂r/∂x could not be recovered from ∂r/∂u.
+        u_jac_all = np.clip(u_all, -_U_EDGE, _U_EDGE)
         if jacobian == "ad":
-            Ju_ad = [np.asarray(jac(jnp.asarray(u), args)) for u in u_all]
+            Ju_ad = [np.asarray(jac(jnp.asarray(u), args)) for u in u_jac_all]
     chi2_all = np.sum(r_all**2, axis=1)
     # A start that ran out of steps while walking a parameter to the edge of its box (u → ±∞, where
     # the logit map flattens) has converged to a boundary optimum: accept it and say so.
-    z_all = 1.0 / (1.0 + np.exp(-u_all))
-    edge = (z_all < 1e-4) | (z_all > 1 - 1e-4)
+    edge = np.abs(u_all) > _U_EDGE
     stalled = np.isin(codes, (1, 7)) & edge.any(axis=1)
     ok = ((codes == 0) | stalled) & np.isfinite(chi2_all)
     starts = []
@@ -241,7 +245,7 @@ def fit_least_squares(
     if pool.size == 0:
         raise ValueError("every least-squares start failed (non-finite residuals); check the measured values and bounds")
     best = int(pool[np.argmin(chi2_all[pool])])
-    u_best = u_all[best]
+    u_best, u_jac = u_all[best], u_jac_all[best]
     x_best = np.asarray(sub.from_unconstrained(u_best))
     # Jacobian in physical units: ∂r/∂x = ∂r/∂u · (∂x/∂u)^-1 (the bijection is elementwise).
     if jacobian == "ad":
@@ -249,9 +253,9 @@ def fit_least_squares(
     else:  # central differences (step 1e-5 in u)
         hs = 1e-5
         E = np.eye(len(sub)) * hs
-        Y = fwd(np.concatenate([u_best[None] + E, u_best[None] - E]))
+        Y = fwd(np.concatenate([u_jac[None] + E, u_jac[None] - E]))
         Ju = ((Y[: len(sub)] - Y[len(sub):]) / (2 * hs)).T * (w / s)[:, None]
-    dxdu = np.diag(np.asarray(jax.jacfwd(sub.from_unconstrained)(jnp.asarray(u_best))))
+    dxdu = np.diag(np.asarray(jax.jacfwd(sub.from_unconstrained)(jnp.asarray(u_jac))))
     Jx = Ju / dxdu[None, :]
     n_eff = int(np.sum(w > 0))
     dof = n_eff - len(sub)

