@@ -19,7 +19,8 @@ likelihood adds (zero for direct models, the held-out error for emulators). Impl
   tracer's callable and its registered emulator ("tracer-emulator") live in `_tracer_forward`.
 * `Emulator` – a Gaussian-process emulator (Matérn-5/2, ARD, one GP per angle) of any forward
   callable, trained on a scrambled-Sobol design in the parameters' unit cube, with its held-out
-  RMS error measured on an independent Latin-hypercube set and exposed as `error_sd`. Built by
+  RMS error measured on an independent Latin-hypercube set, pooled with the training design's
+  leave-one-out errors, and exposed as `error_sd`. Built by
   `build_emulator`, cached on disk under a content-hashed key (atomic writes; the expensive design
   evaluations are check-pointed so an interrupted build resumes). Optionally physics-informed: a
   cheap `mean` model (the tracer emulator uses the analytic single-scatter model) gives a linear
@@ -55,7 +56,7 @@ from ._parameters import ParameterSpec, get_parameter
 from ._tilt import GammaTilt
 
 EMULATOR_VERSION = 1  # meaning of the cached design evaluations (bump to re-run them)
-EMULATOR_FIT_VERSION = 3  # meaning of the fit on top of them (a change only re-fits, from the cached design)
+EMULATOR_FIT_VERSION = 4  # meaning of the fit on top of them (a change only re-fits, from the cached design)
 
 
 # ------------------------------------------------------------------------------------------
@@ -530,7 +531,10 @@ class Emulator(ForwardModel):
     """Gaussian-process emulator of a forward map over the box of `spec` (see `build_emulator`).
 
     Inputs are the parameters of `spec` (physical units); outside the box they are clipped.
-    `error_sd` is the held-out RMS error per angle, `held_out_max` the largest held-out error.
+    `error_sd` is the cross-validated RMS error per angle: the held-out errors (independent LHS set)
+    pooled with the leave-one-out errors of the training design, so that it rests on all
+    n_train + n_test runs (the held-out set alone is small); `held_out_rms` and `held_out_loo_rms`
+    are the two parts, `held_out_max` the largest held-out error.
     With a `mean_model`, L* = c₀ + c₁·L*_mean + GP([unit θ, standardised L*_mean at `mean_features`]).
     """
 
@@ -554,6 +558,7 @@ class Emulator(ForwardModel):
     feature_scale: Float[Array, " f"] | None = None
     held_out_loo_rms: tuple[float, ...] = eqx.field(static=True, default=())
     fit_id: str = eqx.field(static=True, default="")
+    n_test: int = eqx.field(static=True, default=0)
 
     @property
     def parameter_names(self):
@@ -565,7 +570,11 @@ class Emulator(ForwardModel):
 
     @property
     def error_sd(self):
-        return np.asarray(self.held_out_rms)
+        held = np.asarray(self.held_out_rms)
+        if not self.held_out_loo_rms:
+            return held
+        n_train, n_test = self.X.shape[0], self.n_test
+        return np.sqrt((n_train * np.asarray(self.held_out_loo_rms) ** 2 + n_test * held**2) / (n_train + n_test))
 
     def fingerprint(self):
         return f"Emulator({self.key},{hashlib.sha256(self.fit_id.encode()).hexdigest()[:12]})"
@@ -753,7 +762,7 @@ def _fit_emulator(Z, Y, Zt, Yt, spec, mean, mean_features, angles, source, key) 
     hyper, alpha = _fit_gp(jnp.asarray(X), jnp.asarray((target - y_mean) / y_std))
     out |= dict(X=X, alpha=np.asarray(alpha), hyper=np.asarray(hyper), y_mean=y_mean, y_std=y_std,
                 loo_rms=_loo_rms(X, (target - y_mean) / y_std, np.asarray(hyper)) * y_std)
-    em = _emulator_from_arrays(out | dict(held_out_rms=np.zeros(Y.shape[1]), held_out_max=0.0), spec, angles, source, key, mean, mean_features)
+    em = _emulator_from_arrays(out | dict(held_out_rms=np.zeros(Y.shape[1]), held_out_max=0.0, Zt=Zt), spec, angles, source, key, mean, mean_features)
     err = np.asarray(em(np.asarray(spec.from_unit(Zt)))) - Yt
     out["held_out_rms"] = np.sqrt(np.mean(err**2, axis=0))
     out["held_out_max"] = float(np.max(np.abs(err)))
@@ -796,6 +805,7 @@ def _emulator_from_arrays(a: dict, spec, angles, source, key, mean=None, mean_fe
         feature_scale=opt("feature_scale"),
         held_out_loo_rms=tuple(float(v) for v in np.asarray(a.get("loo_rms", ()))),
         fit_id=str(a.get("fit_id", "")),
+        n_test=int(np.asarray(a["Zt"]).shape[0]) if "Zt" in a else 0,
     )
 
 
@@ -807,7 +817,7 @@ def emulator_check(emulator: Emulator, direct: Callable, x: Float[ArrayLike, "n 
     """
     x = np.asarray(x, dtype=float)
     d = np.asarray(emulator(x)) - np.asarray(direct(x))
-    return {"rms": np.sqrt(np.mean(d**2, 0)), "max_abs": np.max(np.abs(d), 0), "held_out_rms": emulator.error_sd, "n": x.shape[0]}
+    return {"rms": np.sqrt(np.mean(d**2, 0)), "max_abs": np.max(np.abs(d), 0), "error_sd": emulator.error_sd, "n": x.shape[0]}
 
 
 # ------------------------------------------------------------------------------------------
