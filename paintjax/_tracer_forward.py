@@ -430,6 +430,8 @@ def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, di
     out = class_(**fields, seed_spread_sd=sd)
     _INFO[em.key] = {
         "held_out_rms_crn": list(em.held_out_rms),
+        "loo_rms_crn": list(em.held_out_loo_rms),
+        "cv_rms_crn": np.asarray(Emulator.error_sd.fget(em)).tolist(),
         "held_out_max": em.held_out_max,
         "seed_spread_sd": list(sd) or None,
         "seed_spread_L": None if spread is None else np.asarray(spread["L"]).tolist(),

@@ -69,9 +69,11 @@ def test_registered_emulator_builds_from_a_tiny_design_and_caches(tmp_path):
     info = tracer_info(em)
     assert info["tracer_evaluations_this_call"] == 10 + 2 + 1  # design + held-out set + seed spread (2 independent + 1 CRN)
     assert len(list(tmp_path.glob("emulator-*.npz"))) == 1
-    held, spread = np.asarray(info["held_out_rms_crn"]), np.asarray(info["seed_spread_sd"])
+    held, loo, spread = (np.asarray(info[k]) for k in ("held_out_rms_crn", "loo_rms_crn", "seed_spread_sd"))
     assert np.all(spread > 0)
-    np.testing.assert_allclose(em.error_sd, np.sqrt(held**2 + spread**2))
+    cv = np.sqrt((6 * loo**2 + 4 * held**2) / 10)  # held-out errors pooled with leave-one-out ones
+    np.testing.assert_allclose(info["cv_rms_crn"], cv)
+    np.testing.assert_allclose(em.error_sd, np.sqrt(cv**2 + spread**2))
     x = np.array([[3.0, 2.2]])
     y_em = np.asarray(em(np.tile(x, (16, 1))))[0]
     y_direct = direct_tracer(em)(np.c_[x, [[0.06, 0.7]]])[0]
