@@ -47,6 +47,11 @@ Estimators (reflectance factor R = π L / E, brief §3).
   a finite `detector_aperture_deg`; for pure mirrors the NEE and histogram columns coincide.
 * Histogram: exiting weight landing inside a detector's cone of half-angle α,
   R_j += π w_exit / (Ω cosθ_air), Ω = 2π(1 − cos α). Both estimate the cone-averaged radiance.
+* Multiple importance sampling (finite cones, flat coat, `TracerOptions.mis`, default on): the
+  reported estimate combines NEE (density 1/Ω over the cone) with the BRDF-sampled exits into the
+  cone (density q · cosθ_air / (n² cosθ_in), q the platelet BRDF's or the primer's sampling pdf)
+  by the balance heuristic, so narrow lobes are scored by whichever strategy finds them; the
+  histogram column stays the plain histogram. Point detectors: NEE alone.
 * Standard errors by batch means over groups of lanes; L* errors by the delta method.
 * Energy ledger per incident unit: top reflection + exited + absorbed by platelets + absorbed by
   primer + roulette (net, zero in expectation) + caps = 1 exactly, ray by ray.
