@@ -114,7 +114,7 @@ def main() -> int:
         ttp = T.trace(array, geo, brdf, rays=args.rays, seed=2, target_se_lstar=args.target_se, max_rays=args.max_rays, **kw)
 
     sc = T.build_scene(array, geo, brdf, grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness,
-                       primer_albedo=0.3, min_cells=opt.cells_per_step)
+                       primer_albedo=0.3, min_cells=opt.cells_per_step, mis=opt.mis)
     key = jnp.asarray(np.uint32(T._seed_state(3)))
     plain_rate = args.plain_rays / plain_tracer(sc, opt, key, args.plain_rays, batch=opt.lanes) if args.plain_rays > 0 else None
 

@@ -709,6 +709,13 @@ def build_emulator(
     if cache_dir == "default":
         cache_dir = default_cache_dir() / "emulators"
     path = None if cache_dir is None else Path(cache_dir) / f"emulator-{key}.npz"
+    if mean is not None:
+        if not isinstance(mean, Restricted) or tuple(mean.names) != spec.names or not mean.jittable:
+            raise ValueError(f"mean must be a jit-able Restricted model of exactly the parameters {spec.names} (in that order)")
+        if tuple(float(a) for a in mean.model.aspecular_deg) != angles:
+            raise ValueError(f"mean's angles {list(mean.model.aspecular_deg)} differ from the emulated ones {list(angles)}")
+        if any(not 0 <= int(i) < len(angles) for i in mean_features):
+            raise ValueError(f"mean_features must be output columns in [0, {len(angles) - 1}], got {list(mean_features)}")
     mean_id = "none" if mean is None else f"{mean.fingerprint()}|features={list(mean_features)}"
     fit_id = f"v{EMULATOR_FIT_VERSION}|{mean_id}"
     arrays = None

@@ -536,7 +536,7 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     val = jnp.pi * w * f * cos_o * To / (sc.n**2 * w_in[:, 2])
     if sc.mis:  # balance heuristic against the BRDF-sampled exit into the same cone direction
         q_j = jnp.where(hit, sc.brdf.pdf(jnp.broadcast_to(wi_loc, (m, 3)), wo_loc_j).astype(dtype), w_in[:, 2] / jnp.pi)
-        val = val / (1.0 + omega * _exit_density(q_j, w_air[:, 2], w_in[:, 2], sc.n))
+        val = val / (1.0 + omega * _exit_density(q_j, jnp.maximum(w_air[:, 2], 0.0), w_in[:, 2], sc.n))
     score = event & (first | ~single)
     if opt.edges == "absorb":
         score = score & ~(hit & side)

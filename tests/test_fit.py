@@ -172,6 +172,10 @@ def test_emulator_with_physics_informed_mean(tmp_path):
     assert np.all(informed.error_sd < 0.5 * plain.error_sd)
     x = np.array([[2.3, 2.2], [3.1, 1.6]])
     np.testing.assert_allclose(np.asarray(informed(x)), fn(x), atol=4 * np.max(informed.error_sd) + 0.05)
+    with pytest.raises(ValueError, match="mean must be a jit-able Restricted model"):
+        build_emulator(fn, spec, **kw, mean=MIRROR.restrict(("scale", "shape"), {"diffuse": 0.0}))
+    with pytest.raises(ValueError, match="mean_features"):
+        build_emulator(fn, spec, **kw, mean=cheap, mean_features=(7,))
     again = build_emulator(fn, spec, **kw, mean=cheap, mean_features=(0, 1, 2))  # read from the cache
     assert sum(calls) == 32 + len(x)  # only the direct check above
     np.testing.assert_allclose(np.asarray(again(x)), np.asarray(informed(x)))
