@@ -150,9 +150,7 @@ class Restricted:
         self._vals = np.array([self.fixed.get(n, 0.0) for n in model.parameter_names])
 
     def full(self, x: Float[ArrayLike, "batch k"]) -> Float[Array, "batch p"]:
-        x = jnp.asarray(x)
-        cols = [x[..., c] if c >= 0 else jnp.full(x.shape[:-1], v, dtype=x.dtype) for c, v in zip(self._cols, self._vals)]
-        return jnp.stack(cols, axis=-1)
+        return _assemble(jnp.asarray(x), self._cols, self._vals)
 
     def evaluate(self, x):
         return self.model.evaluate(self.full(x))
@@ -481,11 +479,16 @@ def _matern52(x1, x2, log_ls, log_amp):
     return jnp.exp(2.0 * log_amp) * (1.0 + s5 + 5.0 / 3.0 * r**2) * jnp.exp(-s5)
 
 
+def _gram(X, hyp):
+    """Training covariance K of a GP with packed hyperparameters (log length scales, log amplitude, log noise)."""
+    p = X.shape[1]
+    return _matern52(X, X, hyp[:p], hyp[p]) + (jnp.exp(2.0 * hyp[p + 1]) + 1e-8) * jnp.eye(X.shape[0])
+
+
 def _neg_log_marginal(hyp, X, y):
     p = X.shape[1]
-    log_ls, log_amp, log_noise = hyp[:p], hyp[p], hyp[p + 1]
-    K = _matern52(X, X, log_ls, log_amp) + (jnp.exp(2.0 * log_noise) + 1e-8) * jnp.eye(X.shape[0])
-    L = jnp.linalg.cholesky(K)
+    log_ls, log_noise = hyp[:p], hyp[p + 1]
+    L = jnp.linalg.cholesky(_gram(X, hyp))
     a = jax.scipy.linalg.cho_solve((L, True), y)
     nll = 0.5 * y @ a + jnp.sum(jnp.log(jnp.diag(L)))
     # Weak log-normal regularisation of the hyperparameters keeps the optimum away from degenerate corners.
@@ -520,8 +523,7 @@ def _fit_gp(X, Y):
         hs, vals = jax.vmap(lambda st: from_start(y, st[0], st[1]))(starts)
         h = hs[jnp.argmin(vals)]
         h = h.at[p + 1].set(jnp.clip(h[p + 1], jnp.log(1e-5), jnp.log(0.3)))
-        K = _matern52(X, X, h[:p], h[p]) + (jnp.exp(2.0 * h[p + 1]) + 1e-8) * jnp.eye(X.shape[0])
-        alpha = jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(K), True), y)
+        alpha = jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(_gram(X, h)), True), y)
         return h, alpha
 
     return jax.vmap(fit_one, in_axes=1)(Y)
@@ -749,7 +751,7 @@ def build_emulator(
 
 def _mean_inputs(spec, mean, mean_features, Z):
     """(L* of the mean model at the unit-cube points Z, the columns used as features)."""
-    a = np.asarray(mean.model.evaluate(_assemble(jnp.asarray(spec.from_unit(Z)), tuple(mean._cols), tuple(mean._vals))))
+    a = np.asarray(mean.evaluate(jnp.asarray(spec.from_unit(Z))))
     return a, a[:, list(mean_features)]
 
 
@@ -779,12 +781,9 @@ def _fit_emulator(Z, Y, Zt, Yt, spec, mean, mean_features, angles, source, key) 
 
 def _loo_rms(X, Ys, hyper) -> np.ndarray:
     """Leave-one-out RMS error of each standardised output column (closed form, α_i / (K⁻¹)_ii)."""
-    q = X.shape[1]
     rms = []
     for k in range(Ys.shape[1]):
-        h = hyper[k]
-        K = np.asarray(_matern52(jnp.asarray(X), jnp.asarray(X), h[:q], h[q])) + (np.exp(2.0 * h[q + 1]) + 1e-8) * np.eye(len(X))
-        Ki = np.linalg.inv(K)
+        Ki = np.linalg.inv(np.asarray(_gram(jnp.asarray(X), jnp.asarray(hyper[k]))))
         rms.append(np.sqrt(np.mean((Ki @ Ys[:, k] / np.diag(Ki)) ** 2)))
     return np.asarray(rms)
 

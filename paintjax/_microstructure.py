@@ -178,6 +178,15 @@ def _tilt_cdf_np(tilt: GammaTilt, tilt_deg) -> np.ndarray:
     return gammainc(k, x / th) / gammainc(k, MAX_TILT_DEG / th)
 
 
+def _tilt_ppf_np(tilt: GammaTilt, u) -> np.ndarray:
+    """Exact inverse of `_tilt_cdf_np` (a smooth function of the law, unlike the sampling table)."""
+    from scipy.special import gammainc, gammaincinv
+
+    k, th = float(tilt.shape), float(tilt.scale_deg)
+    u = np.clip(np.asarray(u, dtype=float), 1e-12, 1 - 1e-12)
+    return np.clip(th * gammaincinv(k, u * gammainc(k, MAX_TILT_DEG / th)), 1e-9, MAX_TILT_DEG)
+
+
 def _sample_tilt_np(tilt: GammaTilt, rng: np.random.Generator, n: int) -> np.ndarray:
     """Tilts [deg] by the inverse-CDF table of `GammaTilt.sample_deg`, in NumPy."""
     grid = MAX_TILT_DEG * np.linspace(0.0, 1.0, _INV_CDF_POINTS) ** 2

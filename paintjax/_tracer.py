@@ -511,8 +511,12 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     else:
         spec = jnp.zeros((), bool)
     omega = 2.0 * jnp.pi * (1.0 - sc.det_cos_alpha)  # detector cone solid angle (0: point detectors)
-    if sc.mis:  # sampling density of the new direction per internal steradian (continuous branches)
-        q_ev = jnp.where(hit, sc.brdf.pdf(wi_loc, wo_loc).astype(dtype), wo_pr[2] / jnp.pi)
+
+    def sampling_pdf(wo_l, cos_primer):  # per internal sr: platelet BRDF's continuous branches, or the primer's cosine
+        return jnp.where(hit, sc.brdf.pdf(jnp.broadcast_to(wi_loc, wo_l.shape), wo_l).astype(dtype), cos_primer / jnp.pi)
+
+    if sc.mis:
+        q_ev = sampling_pdf(wo_loc, wo_pr[2])
 
     # --- next-event estimation: this event's shadow rays are traced in the next step
     origin = x_ev + sc.eps * n_ev
@@ -535,7 +539,7 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     cos_o = jnp.maximum(wo_loc_j[:, 2], 0.0)
     val = jnp.pi * w * f * cos_o * To / (sc.n**2 * w_in[:, 2])
     if sc.mis:  # balance heuristic against the BRDF-sampled exit into the same cone direction
-        q_j = jnp.where(hit, sc.brdf.pdf(jnp.broadcast_to(wi_loc, (m, 3)), wo_loc_j).astype(dtype), w_in[:, 2] / jnp.pi)
+        q_j = sampling_pdf(wo_loc_j, w_in[:, 2])
         val = val / (1.0 + omega * _exit_density(q_j, jnp.maximum(w_air[:, 2], 0.0), w_in[:, 2], sc.n))
     score = event & (first | ~single)
     if opt.edges == "absorb":

@@ -141,12 +141,6 @@ class TracerSettings:
 REFERENCE_TILT = (2.0, 1.5)
 
 
-def _truncated_gamma_ppf(u, shape, scale):
-    from scipy.special import gammainc, gammaincinv
-
-    return np.clip(scale * gammaincinv(shape, np.clip(u, 1e-12, 1 - 1e-12) * gammainc(shape, 90.0 / scale)), 1e-9, 90.0)
-
-
 class TracerLStar:
     """Callable θ (batch, 4) [shape, scale, σ µm, τ µm] → five-angle L* (batch, 5) through the tracer.
 
@@ -221,7 +215,7 @@ class TracerLStar:
         between boxes are not removed again. mode "rsa": a fresh array from the generator at θ
         (overlaps removed; what `paintjax simulate` uses, but jumps between nearby θ).
         """
-        from ._microstructure import PlateletArray, _frames, _tilt_cdf_np, _vertical_half_extent, platelet_array_for_sample
+        from ._microstructure import PlateletArray, _frames, _tilt_cdf_np, _tilt_ppf_np, _vertical_half_extent, platelet_array_for_sample
         from ._tilt import GammaTilt
 
         if mode == "rsa":
@@ -242,7 +236,7 @@ class TracerLStar:
         def half_extent(tilt_deg):  # vertical half extent of each box at these tilts (same azimuth, rotation)
             return _vertical_half_extent(*_frames(tilt_deg, phi, rot), w, t)
 
-        tilt = _truncated_gamma_ppf(_tilt_cdf_np(GammaTilt(*REFERENCE_TILT), tilt_ref), float(shape), float(scale))
+        tilt = _tilt_ppf_np(GammaTilt(float(shape), float(scale)), _tilt_cdf_np(GammaTilt(*REFERENCE_TILT), tilt_ref))
         # Largest tilt at which each box fits in the film (bisection on the vertical half extent).
         fits = half_extent(tilt) <= 0.5 * h_b
         lo, hi = np.zeros_like(tilt), tilt.copy()
