@@ -4,14 +4,19 @@ Reports (1) rays per second of the wavefront tracer, warm (compilation excluded,
 separately); (2) time to reach an L* standard error ≤ 0.3 at all five MA98 angles (adaptive ray
 count, warm); (3) the same physics in a plain `vmap(while_loop)` tracer — every lane runs its own
 ray to the end, shadow rays inline without compaction — as the straightforward alternative, as a
-rays-per-second ratio. Goals: time-to-precision ≤ 60 s on the 2-core CPU (≤ 2 s on one H100).
+rays-per-second ratio (both forward-only). Goals: time-to-precision ≤ 60 s on the 2-core CPU (≤ 2 s
+on one H100).
+
+Time-to-precision runs with the tracer's default bidirectional MIS (`--reverse-share S`, reverse
+rays per forward ray and detector) and, in the same run as the straightforward alternative, with
+the forward tracer alone (`--forward-max-rays 0` skips it); the ratio is reported.
 
 `--detector-aperture A` gives the detectors cones of half-angle A (MIS of NEE and exits into the
 cone unless `--no-mis`). `--coherent-width-factor F` widens the platelets' coherent diffraction lobe F× (a variance
 diagnostic, not physics); `--target-se 0` and `--plain-rays 0` skip those runs.
 
 Usage: python benchmarks/tracer.py [--rays 65536] [--target-se 0.3] [--plain-rays 8192] [--coherent-width-factor 1]
-       [--detector-aperture 0] [--no-mis] [--json]
+       [--detector-aperture 0] [--no-mis] [--reverse-share 1] [--forward-max-rays 4000000] [--json]
 """
 
 from __future__ import annotations
@@ -48,7 +53,7 @@ def plain_tracer(sc, opt, key, rays: int, batch: int) -> float:
         u = T._uniforms(T._ray_hash(key, rid, jnp.asarray(0x7FFFFFFF, jnp.uint32)), T._new_ray_uniforms(sc), dtype)
         p0, d0, w0, _, c0, s0 = T._new_ray(sc, u, dtype)
         ray = (p0, d0, w0, jnp.asarray(True), c0, s0, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32), rid,
-               jnp.asarray(False), jnp.zeros((), dtype), jnp.zeros(3, dtype), jnp.zeros((m, 3), dtype).at[:, 2].set(1.0), jnp.zeros(m, dtype), jnp.zeros(m, dtype))
+               jnp.asarray(False), jnp.zeros((), dtype), jnp.zeros((), dtype), jnp.zeros(3, dtype), jnp.zeros((m, 3), dtype).at[:, 2].set(1.0), jnp.zeros(m, dtype), jnp.zeros(m, dtype))
         tally = jnp.zeros(2 * m + len(T.LEDGER_KEYS) + 1, dtype)
 
         def cond(c):
@@ -82,6 +87,10 @@ def main() -> int:
     ap.add_argument("--coherent-width-factor", type=float, default=1.0)
     ap.add_argument("--detector-aperture", type=float, default=0.0, help="detector cone half-angle [deg] (default 0: point detectors)")
     ap.add_argument("--no-mis", action="store_true", help="NEE alone at finite apertures (default: MIS with BRDF-sampled exits)")
+    ap.add_argument("--reverse-share", type=float, default=T.TracerOptions().reverse_share,
+                    help="bidirectional MIS: reverse rays per forward ray and detector (0: forward tracer alone)")
+    ap.add_argument("--forward-max-rays", type=int, default=4_000_000,
+                    help="ray ceiling of the forward-alone time-to-precision run (0 skips it)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
@@ -98,20 +107,26 @@ def main() -> int:
         width = args.coherent_width_factor * coherent_lobe_width(0.5, s.binder_index, 16.0)
         brdf = platelet_brdf_table(s.sigma.value, s.tau.value, n_medium=s.binder_index, coherent_width=width)
     geo = ma98_geometry(45.0, detector_aperture_deg=args.detector_aperture)
-    opt = T.TracerOptions(mis=not args.no_mis)
-    kw = dict(grid=grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness, options=opt)
+    opt = T.TracerOptions(mis=not args.no_mis, reverse_share=args.reverse_share)
+    opt_fwd = T.TracerOptions(mis=not args.no_mis, reverse_share=0.0)
+    kw = dict(grid=grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness)
 
     t0 = time.perf_counter()
-    T.trace(array, geo, brdf, rays=opt.lanes, seed=99, **kw)  # compile + warm-up
+    for o in (opt, opt_fwd):  # compile + warm-up (the bidirectional passes' shapes, the forward tracer alone)
+        T.trace(array, geo, brdf, rays=8 * opt.lanes, seed=99, options=o, **kw)
     t_compile = time.perf_counter() - t0
     c0 = time.process_time()
-    res = T.trace(array, geo, brdf, rays=args.rays, seed=1, **kw)
+    res = T.trace(array, geo, brdf, rays=args.rays, seed=1, options=opt_fwd, **kw)
     cpu = time.process_time() - c0
     rate = res.rays / res.seconds
+    res_bd = T.trace(array, geo, brdf, rays=args.rays, seed=1, options=opt, **kw)
 
-    ttp = None
+    ttp = ttp_fwd = None
     if args.target_se > 0:
-        ttp = T.trace(array, geo, brdf, rays=args.rays, seed=2, target_se_lstar=args.target_se, max_rays=args.max_rays, **kw)
+        ttp = T.trace(array, geo, brdf, rays=args.rays, seed=2, target_se_lstar=args.target_se, max_rays=args.max_rays, options=opt, **kw)
+        if args.forward_max_rays > 0 and args.reverse_share > 0:
+            ttp_fwd = T.trace(array, geo, brdf, rays=args.rays, seed=2, target_se_lstar=args.target_se, max_rays=args.forward_max_rays,
+                              options=opt_fwd, **kw)
 
     sc = T.build_scene(array, geo, brdf, grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness,
                        primer_albedo=0.3, min_cells=opt.cells_per_step, mis=opt.mis)
@@ -131,6 +146,10 @@ def main() -> int:
         "cpu_seconds": cpu,
         "L_star": res.L_star.tolist(),
         "L_star_se": res.L_star_se.tolist(),
+        "reverse_share": args.reverse_share,
+        "bidirectional_rays_per_second": res_bd.rays / res_bd.seconds,
+        "bidirectional_L_star": res_bd.L_star.tolist(),
+        "bidirectional_L_star_se": res_bd.L_star_se.tolist(),
         "coherent_width_factor": args.coherent_width_factor,
         "detector_aperture_deg": args.detector_aperture,
         "mis": not args.no_mis and args.detector_aperture > 0,
@@ -139,6 +158,13 @@ def main() -> int:
         "ttp_seconds": None if ttp is None else ttp.seconds,
         "ttp_L_star_se": None if ttp is None else ttp.L_star_se.tolist(),
         "ttp_met": None if ttp is None else bool(np.all(ttp.L_star_se <= args.target_se)),
+        "ttp_L_star": None if ttp is None else ttp.L_star.tolist(),
+        "forward_ttp_rays": None if ttp_fwd is None else ttp_fwd.rays,
+        "forward_ttp_seconds": None if ttp_fwd is None else ttp_fwd.seconds,
+        "forward_ttp_L_star": None if ttp_fwd is None else ttp_fwd.L_star.tolist(),
+        "forward_ttp_L_star_se": None if ttp_fwd is None else ttp_fwd.L_star_se.tolist(),
+        "forward_ttp_met": None if ttp_fwd is None else bool(np.all(ttp_fwd.L_star_se <= args.target_se)),
+        "ttp_speedup_vs_forward": None if ttp_fwd is None else ttp_fwd.seconds / ttp.seconds,
         "plain_rays_per_second": plain_rate,
         "speedup_vs_plain": None if plain_rate is None else rate / plain_rate,
         "goal_met": None if ttp is None else bool(ttp.seconds <= GOAL_S and np.all(ttp.L_star_se <= args.target_se)),

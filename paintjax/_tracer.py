@@ -52,7 +52,20 @@ Estimators (reflectance factor R = π L / E, brief §3).
   cone (density q · cosθ_air / (n² cosθ_in), q the platelet BRDF's or the primer's sampling pdf)
   by the balance heuristic, so narrow lobes are scored by whichever strategy finds them; the
   histogram column stays the plain histogram. Point detectors: NEE alone.
-* Standard errors by batch means over groups of lanes; L* errors by the delta method.
+* Bidirectional MIS (point detectors, collimated beam, flat coat, `TracerOptions.reverse_share`,
+  default 0.5): forward NEE sees a narrow platelet lobe (the coherent diffraction lobe) lit by
+  diffuse light (primer, rough lobes) only in rare large spikes; traced from the detector's side
+  the same path samples the lobe and closes at the diffuse vertex. Each detector j gets a reverse
+  pass (source at ω_j, one detector at the source: the paint BRDF is reciprocal) and both passes
+  weight their NEE by the balance heuristic. For a path x_1 … x_k the ratio of the reverse to the
+  forward path density is ρ = (cos_k,j |z_L|)/(cos_1,in |z_j|) · Π_{i≥2} q̃_rev,i / Π_{i<k} q̃_fwd,i
+  (q̃ = sampling density per projected solid angle; the beams are uniform over the tile, so their
+  projected-area densities give the cosines and the geometric terms cancel); each ray carries the
+  running log-ratio, the forward weight is 1/(1 + cρ) (c = reverse / forward rays) and the reverse
+  pass computes the same for 1/ρ, so the weights sum to one path by path, whatever the densities.
+  Paths with a narrow lobe at both ends stay spiky either way.
+* Standard errors by batch means over groups of lanes (batch b of every pass summed); L* errors by
+  the delta method.
 * Energy ledger per incident unit: top reflection + exited + absorbed by platelets + absorbed by
   primer + roulette (net, zero in expectation) + caps = 1 exactly, ray by ray.
 
@@ -82,7 +95,7 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Float, Int
 
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF
-from ._instrument import MAX_POLAR_DEG, Geometry
+from ._instrument import MAX_POLAR_DEG, Geometry, refract_into_coat
 from ._lightness import reflectance_factor_to_lightness
 from ._interface import check_waviness, reflect, refract, sample_facet_normal, sample_visible_facet, seen_through_facet, slope_sd
 from ._microfacet import _orthonormal_basis, check_coat_index
@@ -115,6 +128,11 @@ class TracerOptions(eqx.Module):
         mis: with finite detector apertures and a flat coat, combine NEE with the BRDF-sampled
             exits into each aperture by multiple importance sampling (balance heuristic);
             False: NEE alone (the histogram is always reported on its own as well).
+        reverse_share: bidirectional MIS where both ends are delta directions (collimated beam,
+            point detectors, flat coat, BRDF without a delta part): per detector a reverse pass
+            (reciprocity: the detector is the source, the source the only detector) traces this
+            many rays per forward ray, and the NEE of both passes is weighted by the balance
+            heuristic over their path densities. 0: the forward tracer alone.
         float64: trace in float64 when x64 is enabled (default float32 geometry, which is ample
             for µm-scale boxes in a sub-mm tile and twice as fast; tallies are float64 under x64).
     """
@@ -131,6 +149,7 @@ class TracerOptions(eqx.Module):
     shadow_buffer: float = eqx.field(static=True, default=0.25)
     edges: str = eqx.field(static=True, default="scatter")
     mis: bool = eqx.field(static=True, default=True)
+    reverse_share: float = eqx.field(static=True, default=0.5)
 
     def __check_init__(self):
         for name, v, lo in (("lanes", self.lanes, 1), ("steps_per_call", self.steps_per_call, 1),
@@ -146,6 +165,8 @@ class TracerOptions(eqx.Module):
             raise ValueError(f"shadow_buffer must lie in (0, 1], got {self.shadow_buffer!r}")
         if self.edges not in ("scatter", "absorb"):
             raise ValueError(f"edges must be 'scatter' or 'absorb', got {self.edges!r}")
+        if not (0.0 <= self.reverse_share <= 16.0):
+            raise ValueError(f"reverse_share must lie in [0, 16], got {self.reverse_share!r}")
         if not (0.0 <= self.roulette_weight < 1.0):
             raise ValueError(f"roulette_weight must lie in [0, 1), got {self.roulette_weight!r}")
 
@@ -201,16 +222,19 @@ class _Scene(eqx.Module):
     n: Float[Array, ""]
     albedo: Float[Array, ""]
     eps: Float[Array, ""]
-    illum_air: Float[Array, "3"]
+    illum_air: Float[Array, "P 3"]  # P sources; ray r comes from source r mod P (the reverse pool: one per detector)
     illum_cos_alpha: Float[Array, ""]
     det_air: Float[Array, "m 3"]
     det_cos_alpha: Float[Array, ""]
     brdf: AbstractPlateletBRDF
     slope_sd: Float[Array, ""]  # per-component slope sd of a wavy clearcoat (0 = flat)
+    log_reverse_share: Float[Array, "m"]  # bidirectional MIS: log(reverse rays / forward rays) per detector (−inf: off)
+    illum_in_z: Float[Array, " P"]  # |z| of the refracted source directions (projected-area factor of the beam)
     max_cells: int = eqx.field(static=True)  # budget of a ray's step
     shadow_cells: int = eqx.field(static=True)  # budget of a shadow ray (always enough)
     wavy: bool = eqx.field(static=True, default=False)  # draw facet normals at the clearcoat surface
     mis: bool = eqx.field(static=True, default=False)  # NEE + BRDF-sampled exits, balance heuristic
+    bidir: bool = eqx.field(static=True, default=False)  # NEE weighted against the reverse (detector-side) tracer
 
 
 def _bucket(x: int, q: int) -> int:
@@ -422,7 +446,12 @@ def _new_ray_uniforms(sc: _Scene) -> int:
     return 7 if sc.wavy else 5
 
 
-def _new_ray(sc: _Scene, u, dtype, randomize_azimuth: bool = True):
+def _source(sc: _Scene, rid):
+    """Source index of ray `rid` (rays are dealt to the P sources in turn)."""
+    return (rid % sc.illum_air.shape[0]).astype(jnp.int32)
+
+
+def _new_ray(sc: _Scene, u, dtype, randomize_azimuth: bool = True, src=0):
     """Position, direction, weight T, top reflection 1 − T and rotation (cos, sin) of a fresh ray from uniforms u.
 
     The ray enters through a clearcoat facet m (flat: m = z; wavy: drawn from the visible-normal
@@ -430,7 +459,7 @@ def _new_ray(sc: _Scene, u, dtype, randomize_azimuth: bool = True):
     """
     phi = 2.0 * jnp.pi * u[4] if randomize_azimuth else jnp.zeros((), dtype)
     c, s = jnp.cos(phi), jnp.sin(phi)
-    w_air = _cone(sc.illum_air, sc.illum_cos_alpha, u[2], u[3])
+    w_air = _cone(sc.illum_air[src], sc.illum_cos_alpha, u[2], u[3])
     w_air = _rotz(w_air, c, s)
     if sc.wavy:
         mf = sample_visible_facet(w_air, sc.slope_sd, u[5], u[6])
@@ -456,9 +485,51 @@ def _has_delta(brdf) -> bool:
     return bool(brdf.is_delta) or getattr(brdf, "coherent", None) == "delta"
 
 
+def _projected_pdfs(sc: _Scene, hit, wi_loc, wo_loc):
+    """Sampling densities per projected solid angle at a vertex, forward (ω_i → ω_o) and reverse (ω_o → ω_i).
+
+    The primer's cosine sampling gives 1/π both ways; a platelet face its BRDF's `pdf`.
+    """
+    wi_b = jnp.broadcast_to(wi_loc, wo_loc.shape)
+    cos_i = jnp.maximum(wi_b[..., 2], 1e-12)
+    cos_o = jnp.maximum(wo_loc[..., 2], 1e-12)
+    fwd = sc.brdf.pdf(wi_b, wo_loc).astype(cos_i.dtype) / cos_o
+    rev = sc.brdf.pdf(wo_loc, wi_b).astype(cos_i.dtype) / cos_i
+    return jnp.where(hit, fwd, 1.0 / jnp.pi), jnp.where(hit, rev, 1.0 / jnp.pi)
+
+
+def _log(x):
+    return jnp.log(jnp.maximum(x, 1e-30))
+
+
+def _reverse_weight(sc: _Scene, src, hit, first, lg, wi_loc, wo_loc_j, w_in):
+    """Balance-heuristic weight of this vertex's NEE toward each detector against the reverse tracer.
+
+    For a path x_1 … x_k closed by NEE at x_k, forward (beam → x_1, sampled directions, NEE x_k →
+    detector) and reverse (detector beam → x_k, sampled directions, NEE x_1 → source) path densities
+    have the ratio ρ = (cos_k,det |z_L|) / (cos_1,in |z_D|) · Π_{i=2..k} q̃_rev,i / Π_{i=1..k−1} q̃_fwd,i
+    (q̃ per projected solid angle; the beams' projected-area densities give the cosines, the
+    geometric terms cancel). With c = reverse / forward rays, the forward weight is 1 / (1 + c ρ);
+    the reverse tracer computes 1 / ρ for the same path, so the two weights sum to one.
+    """
+    _, rev_j = _projected_pdfs(sc, hit, wi_loc, wo_loc_j)
+    cos_in = jnp.maximum(wi_loc[2], 1e-12)
+    log_rho = (sc.log_reverse_share + _log(sc.illum_in_z[src]) - _log(w_in[:, 2]) + _log(wo_loc_j[:, 2])
+               + jnp.where(first, -_log(cos_in), lg + _log(rev_j)))
+    return jax.nn.sigmoid(-jnp.clip(log_rho, -80.0, 80.0))
+
+
+def _update_log_ratio(sc: _Scene, hit, first, lg, wi_loc, wo_loc, wo_pr):
+    """Running log of (1 / cos_1,in) Π_{i≥2} q̃_rev,i / Π q̃_fwd,i after sampling this vertex's direction."""
+    wo = jnp.where(hit, wo_loc, wo_pr)
+    fwd, rev = _projected_pdfs(sc, hit, wi_loc, wo)
+    cos_in = jnp.maximum(wi_loc[2], 1e-12)
+    return jnp.clip(jnp.where(first, -_log(cos_in), lg + _log(rev)) - _log(fwd), -200.0, 200.0)
+
+
 def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     """Advance one lane by one step: its pending shadow rays and its ray. Returns (lane, tally)."""
-    pos, d, w, alive, cph, sph, nstep, nev, rid, spec_last, q_last, sh_org, sh_dir, sh_lim, sh_val = ray
+    pos, d, w, alive, cph, sph, nstep, nev, rid, spec_last, q_last, lg, sh_org, sh_dir, sh_lim, sh_val = ray
     dtype = pos.dtype
     m = sc.det_air.shape[0]
     has_delta = _has_delta(sc.brdf)
@@ -544,6 +615,9 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     score = event & (first | ~single)
     if opt.edges == "absorb":
         score = score & ~(hit & side)
+    if sc.bidir:  # balance heuristic against the reverse tracer (source and detector swapped)
+        val = val * _reverse_weight(sc, _source(sc, rid), hit, first, lg, wi_loc, wo_loc_j, w_in)
+        lg_new = _update_log_ratio(sc, hit, first, lg, wi_loc, wo_loc, wo_pr)
     val = jnp.where(score & jnp.isfinite(val) & (val > 0), val, 0.0)
     if opt.shadow_roulette > 0:  # unbiased roulette on small contributions saves shadow rays
         small = val < opt.shadow_roulette
@@ -626,7 +700,8 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     keep_sh = alive & event
     new_ray = (new_pos.astype(dtype), new_d.astype(dtype), jnp.where(alive2, new_w, 0.0).astype(dtype), alive2, cph, sph,
                nstep2, nev + event.astype(nev.dtype), rid, jnp.where(event, spec, spec_last),
-               jnp.where(event, q_ev, q_last).astype(dtype) if sc.mis else q_last, origin.astype(dtype), new_sh_dir,
+               jnp.where(event, q_ev, q_last).astype(dtype) if sc.mis else q_last,
+               jnp.where(event, lg_new, lg).astype(dtype) if sc.bidir else lg, origin.astype(dtype), new_sh_dir,
                new_sh_lim, jnp.where(keep_sh, new_sh_val, 0.0))
     return new_ray, tally
 
@@ -668,6 +743,15 @@ def _shadows(sc: _Scene, opt: TracerOptions, org, sh_dir, sh_lim, sh_val):
 # Wavefront driver (one device); shard_map spreads the lanes over devices
 
 
+def _to_columns(sc: _Scene, rid, x):
+    """Per-detector tallies (lanes, m) → output columns: the detectors themselves for one source,
+    the ray's source for several (the reverse pool, m = 1: source j scores detector j's column)."""
+    P = sc.illum_air.shape[0]
+    if P == 1:
+        return x
+    return jnp.where(jnp.arange(P)[None, :] == _source(sc, rid)[:, None], x[:, :1], 0.0)
+
+
 def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions):
     """`steps_per_call` wavefront steps on one device's lanes (refill dead lanes, step all)."""
     ndev = jax.lax.psum(1, "rays")
@@ -676,15 +760,16 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
 
     def one_step(_, st):
         rays, tally, next_local = st
-        pos, d, w, alive, cph, sph, nstep, nev, rid, spec, q_last, *sh = rays
+        pos, d, w, alive, cph, sph, nstep, nev, rid, spec, q_last, lg, *sh = rays
         dtype = pos.dtype
+        nee = _to_columns(sc, rid, _shadows(sc, opt, *sh))  # before the refill: rid is still the shadow rays' ray
         dead = ~alive
         rank = jnp.cumsum(dead.astype(idt)) - 1
         local_id = next_local[0] + rank
         start = dead & (local_id < n_local)
         rid = jnp.where(start, local_id * ndev + dev, rid)
         ug = jax.vmap(lambda r: _uniforms(_ray_hash(key, r, jnp.asarray(0x7FFFFFFF, jnp.uint32)), _new_ray_uniforms(sc), dtype))(rid)
-        p0, d0, w0, r0, c0, s0 = jax.vmap(lambda uu: _new_ray(sc, uu, dtype, opt.randomize_azimuth))(ug)
+        p0, d0, w0, r0, c0, s0 = jax.vmap(lambda uu, r: _new_ray(sc, uu, dtype, opt.randomize_azimuth, _source(sc, r)))(ug, rid)
         col = start[:, None]
         pos, d = jnp.where(col, p0, pos), jnp.where(col, d0, d)
         w, cph, sph = jnp.where(start, w0, w), jnp.where(start, c0, cph), jnp.where(start, s0, sph)
@@ -695,11 +780,12 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
         next_local = next_local + jnp.sum(start).astype(idt)
         t_start = jnp.zeros_like(tally).at[:, -7].set(r0.astype(tally.dtype)).at[:, -1].set(1.0)
         tally = tally + jnp.where(col, t_start, 0.0)
-        nee = _shadows(sc, opt, *sh)
         tally = tally.at[:, : nee.shape[1]].add(nee.astype(tally.dtype))
         kstep = jax.vmap(lambda r, t: _ray_hash(key, r, t))(rid, nstep)
-        rays = (pos, d, w, alive, cph, sph, nstep, nev, rid, spec, q_last, *sh)
+        rays = (pos, d, w, alive, cph, sph, nstep, nev, rid, spec, q_last, lg, *sh)
         rays, inc = jax.vmap(lambda r, k: _step_one(sc, opt, r, k, single))(rays, kstep)
+        m = sc.det_air.shape[0]
+        inc = jnp.concatenate([_to_columns(sc, rid, inc[:, :m]), _to_columns(sc, rid, inc[:, m : 2 * m]), inc[:, 2 * m :]], axis=1)
         return rays, tally + inc.astype(tally.dtype), next_local
 
     return jax.lax.fori_loop(0, opt.steps_per_call, one_step, state)
@@ -724,12 +810,12 @@ def _runner(mesh: Mesh, opt: TracerOptions):
     return _RUNNERS[key]
 
 
-def _initial_state(lanes_total: int, ndev: int, m: int, dtype, tdtype, idt):
+def _initial_state(lanes_total: int, ndev: int, m: int, m_out: int, dtype, tdtype, idt):
     z = lambda *s, t=dtype: jnp.zeros(s, t)  # noqa: E731
     L = lanes_total
     rays = (z(L, 3), z(L, 3), z(L), jnp.zeros(L, bool), z(L), z(L), jnp.zeros(L, jnp.int32), jnp.zeros(L, jnp.int32),
-            jnp.zeros(L, idt), jnp.zeros(L, bool), z(L), z(L, 3), jnp.zeros((L, m, 3), dtype).at[..., 2].set(1.0), z(L, m), z(L, m))
-    tally = z(L, 2 * m + len(LEDGER_KEYS) + 1, t=tdtype)
+            jnp.zeros(L, idt), jnp.zeros(L, bool), z(L), z(L), z(L, 3), jnp.zeros((L, m, 3), dtype).at[..., 2].set(1.0), z(L, m), z(L, m))
+    tally = z(L, 2 * m_out + len(LEDGER_KEYS) + 1, t=tdtype)
     return rays, tally, jnp.zeros(ndev, idt)
 
 
@@ -761,8 +847,13 @@ def _check_range(name, value, lo, hi, lo_open=False):
 
 
 def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, n: float, clearcoat_thickness: float,
-                primer_albedo: float, waviness_deg: float = 0.0, dtype=jnp.float32, min_cells: int = 2, mis: bool = True) -> _Scene:
+                primer_albedo: float, waviness_deg: float = 0.0, dtype=jnp.float32, min_cells: int = 2, mis: bool = True,
+                reverse_share=None, reverse: bool = False) -> _Scene:
     """Pack an array, its grid, the BRDF and the instrument into the tracer's device scene.
+
+    `reverse`: the reverse pool of bidirectional MIS, by reciprocity: one source per detector (at
+    the detector's direction) and one detector at the illumination direction; `reverse_share`
+    is then the reverse rays per forward ray and detector, as for the forward scene.
 
     Platelet and cell tables are padded to bucketed sizes and the grid dimensions are traced
     values, so arrays of similar size (e.g. the two reference samples) share one compilation.
@@ -781,6 +872,15 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
     table[:ncell, : cells.shape[1]] = np.where(cells < 0, n_pad - 1, cells)
     eps = max(1e-9, 64.0 * float(jnp.finfo(dtype).eps)) * max(Lx, Ly, h_b)
     arr = lambda x: jnp.asarray(np.asarray(x, dtype=float), dtype)  # noqa: E731
+    sources = np.asarray(geometry.illumination_air(), dtype=float)[None]
+    detectors = np.asarray(geometry.detectors_air(), dtype=float)
+    illum_alpha, det_alpha = geometry.illumination_aperture_deg, geometry.detector_aperture_deg
+    if reverse:
+        sources, detectors, illum_alpha, det_alpha = detectors, sources, det_alpha, illum_alpha
+    share = np.zeros(1) if reverse_share is None else np.atleast_1d(np.asarray(reverse_share, dtype=float))
+    with np.errstate(divide="ignore"):
+        log_share = np.log(1.0 / share if reverse else share)  # log(rays of the other pass / this pass's), per detector
+    src_in = np.asarray(refract_into_coat(jnp.asarray(sources), float(n)))
     return _Scene(
         cols=_pack_platelets(array, dtype, n_pad),
         cells=jnp.asarray(table),
@@ -793,16 +893,19 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
         n=arr(float(n)),
         albedo=arr(float(primer_albedo)),
         eps=arr(eps),
-        illum_air=arr(geometry.illumination_air()),
-        illum_cos_alpha=arr(np.cos(np.deg2rad(geometry.illumination_aperture_deg))),
-        det_air=arr(geometry.detectors_air()),
-        det_cos_alpha=arr(np.cos(np.deg2rad(geometry.detector_aperture_deg))),
+        illum_air=arr(sources),
+        illum_cos_alpha=arr(np.cos(np.deg2rad(illum_alpha))),
+        det_air=arr(detectors),
+        det_cos_alpha=arr(np.cos(np.deg2rad(det_alpha))),
         brdf=brdf,
         slope_sd=arr(slope_sd(waviness_deg)),
+        log_reverse_share=jnp.asarray(np.broadcast_to(np.maximum(log_share, -1e30), (detectors.shape[0],)), dtype),
+        illum_in_z=arr(np.abs(src_in[:, 2])),
         max_cells=int(min_cells),
         shadow_cells=_shadow_cell_bound(shape, cell, h_b, float(n)),
         wavy=waviness_deg > 0.0,
-        mis=bool(mis) and geometry.detector_aperture_deg > 0.0 and not waviness_deg > 0.0,
+        mis=bool(mis) and det_alpha > 0.0 and not waviness_deg > 0.0,
+        bidir=bool(np.any(share > 0)),
     )
 
 
@@ -831,12 +934,32 @@ def _summarise(tally: np.ndarray, m: int, batches: int):
     return est, se, per_batch, ledger, int(N)
 
 
+def _combine(parts, m: int):
+    """Forward pass + reverse pool (whose column j is source j, i.e. detector j): estimates,
+    batch-means SE, per-batch estimates, the forward pass's energy ledger and the rays of all passes."""
+    est, _, per_batch, ledger, _ = parts[0]
+    est, per_batch = est.copy(), per_batch.copy()
+    for e, _, pb, _, n in parts[1:]:  # rays r = 0 … n − 1 go to source r mod m
+        est[:m] += e[:m] * n / (n // m + (np.arange(m) < n % m))
+        per_batch[:, :m] += m * pb[:, :m]
+    batches = per_batch.shape[0]
+    se = np.sqrt(np.sum((per_batch - per_batch.mean(axis=0)) ** 2, axis=0) / (batches * (batches - 1))) if len(parts) > 1 else parts[0][1]
+    return est, se, per_batch, ledger, sum(p[4] for p in parts)
+
+
 def lightness_with_se(R, se):
     """L* of reflectance factors and its standard error by the delta method (NumPy)."""
     R = np.asarray(R, dtype=float)
     L = np.asarray(reflectance_factor_to_lightness(jnp.asarray(R)))
     dL = np.asarray(jax.vmap(jax.grad(lambda r: reflectance_factor_to_lightness(r)))(jnp.asarray(np.maximum(R, 1e-12)).reshape(-1))).reshape(R.shape)
     return L, np.abs(dL) * np.asarray(se)
+
+
+def _bidirectional_applies(opt: TracerOptions, geometry: Geometry, brdf, waviness_deg: float) -> bool:
+    """Bidirectional MIS needs delta directions at both ends (collimated beam, point detectors), a
+    flat coat and a BRDF without a delta part; elsewhere the tracer runs forward alone."""
+    return (opt.reverse_share > 0 and geometry.detector_aperture_deg == 0 and geometry.illumination_aperture_deg == 0
+            and not waviness_deg > 0 and not _has_delta(brdf))
 
 
 def trace(
@@ -868,11 +991,13 @@ def trace(
         clearcoat_thickness: h_c in µm (≥ 0).
         primer_albedo: Lambertian primer albedo ρ in [0, 1].
         waviness_deg: RMS slope angle of a wavy clearcoat surface in [0, 15]° (0: flat; see `_interface`).
-        rays: number of rays (rounded up to a multiple of the device count).
+        rays: number of rays, over all passes (bidirectional: 1 + m·`reverse_share` rays per
+            forward ray; rounded up to a multiple of the device count).
         seed: random seed; the result depends on it and on `options`, not on the schedule.
         single_scatter: score only the first scattering event of each path.
         target_se_lstar: if given, keep adding rays until the L* standard error is at most this at
-            every detector (or `max_rays` is reached); `rays` is then the first round.
+            every detector (or `max_rays` is reached); `rays` is then the first round, and each
+            round at most quadruples the rays.
         max_rays: ceiling for `target_se_lstar` (default 64 × rays).
         options: `TracerOptions`.
 
@@ -899,44 +1024,61 @@ def trace(
     if bool(np.asarray(getattr(grid, "overflow", False))):
         raise ValueError("grid.overflow is set: some cell exceeded its capacity; rebuild the grid with a larger capacity")
     cdt = jnp.float64 if (opt.float64 and jax.config.jax_enable_x64) else jnp.float32
-    sc = build_scene(array, geometry, brdf, grid, n=n, clearcoat_thickness=clearcoat_thickness, primer_albedo=primer_albedo,
-                     waviness_deg=waviness_deg, dtype=cdt, min_cells=opt.cells_per_step, mis=opt.mis)
+    m = geometry.num_detectors
+    share = opt.reverse_share if _bidirectional_applies(opt, geometry, brdf, waviness_deg) else 0.0
+    common = dict(n=n, clearcoat_thickness=clearcoat_thickness, primer_albedo=primer_albedo, waviness_deg=waviness_deg,
+                  dtype=cdt, min_cells=opt.cells_per_step, mis=opt.mis)
+    # the forward pass (all detectors) and, bidirectionally, the reverse pool: every detector becomes a
+    # source whose one detector is the illumination (reciprocity), `share` rays per forward ray each
+    passes = [(build_scene(array, geometry, brdf, grid, reverse_share=share, **common), 1.0)]
+    if share > 0:
+        passes.append((build_scene(array, geometry, brdf, grid, reverse_share=share, reverse=True, **common), share * m))
     devices = jax.local_devices()
     ndev = len(devices)
     mesh = Mesh(np.array(devices), ("rays",))
     lanes_total = opt.lanes * ndev
-    m = geometry.num_detectors
     idt = jnp.int64 if jax.config.jax_enable_x64 else jnp.int32
     dtype = jnp.result_type(float)
     run = _runner(mesh, opt)
-    single = jnp.asarray(bool(single_scatter))
-    key = jnp.asarray(np.uint32(_seed_state(seed)))
     from jax.sharding import NamedSharding
 
     lanes_sharding = NamedSharding(mesh, PartitionSpec("rays"))
     replicated = NamedSharding(mesh, PartitionSpec())
-    state = jax.device_put(_initial_state(lanes_total, ndev, m, cdt, dtype, idt), lanes_sharding)
-    sc = jax.device_put(sc, replicated)
-    key = jax.device_put(key, replicated)
-    single = jax.device_put(single, replicated)
-    n_local = -(-int(rays) // ndev)
-    limit_local = -(-int(max_rays if max_rays is not None else 64 * int(rays)) // ndev)
+    put = lambda x: jax.device_put(x, replicated)  # noqa: E731
+    single = put(jnp.asarray(bool(single_scatter)))
+    seed_state = _seed_state(seed)
+    live = []  # per pass: scene, key, state, fraction of the forward rays
+    for p, (sc, frac) in enumerate(passes):
+        key = put(jnp.asarray(np.uint32(seed_state ^ ((0x9E3779B9 * p) & 0xFFFFFFFF))))
+        state = jax.device_put(_initial_state(lanes_total, ndev, sc.det_air.shape[0], m, cdt, dtype, idt), lanes_sharding)
+        live.append([put(sc), key, state, frac])
+    per_forward = sum(frac for _, frac in passes)  # rays of all passes per forward ray
+    n_local = -(-int(np.ceil(int(rays) / per_forward)) // ndev)
+    limit_local = -(-int(np.ceil(int(max_rays if max_rays is not None else 64 * int(rays)) / per_forward)) // ndev)
     t0 = time.perf_counter()
     while True:
-        nl = jax.device_put(jnp.asarray(n_local, idt), replicated)
-        while True:
-            state = run(sc, key, state, nl, single)
-            busy = bool(jnp.any(state[0][3]) | jnp.any(state[0][-1] != 0))
-            if not busy and int(jnp.min(state[2])) >= n_local:
-                break
-        est, se, per_batch, ledger, N = _summarise(np.asarray(state[1], dtype=float), m, opt.batches)
+        parts = []
+        for item in live:
+            sc, key, state, frac = item
+            target = max(1, int(np.ceil(frac * n_local)))
+            nl = put(jnp.asarray(target, idt))
+            while True:
+                state = run(sc, key, state, nl, single)
+                busy = bool(jnp.any(state[0][3]) | jnp.any(state[0][-1] != 0))
+                if not busy and int(jnp.min(state[2])) >= target:
+                    break
+            item[2] = state
+            parts.append(_summarise(np.asarray(state[1], dtype=float), m, opt.batches))
+        est, se, per_batch, ledger, N = _combine(parts, m)
         if target_se_lstar is None:
             break
         _, Lse = lightness_with_se(est[:m], se[:m])
         worst = float(np.max(Lse / target_se_lstar))
         if worst <= 1.0 or n_local >= limit_local:
             break
-        grow = int(np.ceil(n_local * (worst**2 * 1.1 - 1.0)))
+        # rays for the target from this round's SE, at most 4× per round: a rare spike in an early,
+        # small round inflates its SE estimate, and an uncapped step would overshoot on it
+        grow = int(np.ceil(n_local * min(worst**2 * 1.1 - 1.0, 3.0)))
         n_local = min(limit_local, n_local + max(grow, opt.lanes))
     seconds = time.perf_counter() - t0
     R, Rse = est[:m], se[:m]
