@@ -132,7 +132,10 @@ class TracerOptions(eqx.Module):
             point detectors, flat coat, BRDF without a delta part): per detector a reverse pass
             (reciprocity: the detector is the source, the source the only detector) traces this
             many rays per forward ray, and the NEE of both passes is weighted by the balance
-            heuristic over their path densities. 0: the forward tracer alone.
+            heuristic over their path densities. 0: the forward tracer alone. It relies on
+            reciprocity: of the platelet BRDF (all of paintjax's are) and of the scene, which
+            overlapping boxes break (a ray starting inside a box passes through it, one arriving
+            from outside does not), so arrays should be overlap-free (`array_statistics`).
         float64: trace in float64 when x64 is enabled (default float32 geometry, which is ample
             for µm-scale boxes in a sub-mm tile and twice as fast; tallies are float64 under x64).
     """
@@ -176,7 +179,9 @@ class TraceResult(eqx.Module):
 
     `reflectance_factor` is the NEE estimate (for delta platelets: the aperture splat),
     `histogram_reflectance_factor` the finite-aperture histogram of exiting rays (0 for zero
-    apertures). Standard errors are batch means over `batches` groups of lanes.
+    apertures). Standard errors are batch means over `batches` groups of lanes (bidirectional:
+    of each pass, added in quadrature; `batch_reflectance_factor` is then the forward batch plus
+    the reverse pool's batch). `rays` counts the rays of all passes; `energy` is per forward ray.
     """
 
     aspecular_deg: np.ndarray
@@ -524,7 +529,7 @@ def _update_log_ratio(sc: _Scene, hit, first, lg, wi_loc, wo_loc, wo_pr):
     wo = jnp.where(hit, wo_loc, wo_pr)
     fwd, rev = _projected_pdfs(sc, hit, wi_loc, wo)
     cos_in = jnp.maximum(wi_loc[2], 1e-12)
-    return jnp.clip(jnp.where(first, -_log(cos_in), lg + _log(rev)) - _log(fwd), -200.0, 200.0)
+    return jnp.where(first, -_log(cos_in), lg + _log(rev)) - _log(fwd)  # finite: `_log` floors its argument
 
 
 def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
@@ -778,14 +783,17 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
         spec = spec & ~start
         alive = alive | start
         next_local = next_local + jnp.sum(start).astype(idt)
-        t_start = jnp.zeros_like(tally).at[:, -7].set(r0.astype(tally.dtype)).at[:, -1].set(1.0)
+        m_out = (tally.shape[1] - len(LEDGER_KEYS)) // 3  # tally: NEE, histogram, ledger, rays (per output column)
+        counts = jnp.broadcast_to(_to_columns(sc, rid, jnp.ones((rid.shape[0], 1), tally.dtype)), (rid.shape[0], m_out))
+        t_start = jnp.zeros_like(tally).at[:, 2 * m_out].set(r0.astype(tally.dtype)).at[:, -m_out:].set(counts)
         tally = tally + jnp.where(col, t_start, 0.0)
         tally = tally.at[:, : nee.shape[1]].add(nee.astype(tally.dtype))
         kstep = jax.vmap(lambda r, t: _ray_hash(key, r, t))(rid, nstep)
         rays = (pos, d, w, alive, cph, sph, nstep, nev, rid, spec, q_last, lg, *sh)
         rays, inc = jax.vmap(lambda r, k: _step_one(sc, opt, r, k, single))(rays, kstep)
-        m = sc.det_air.shape[0]
-        inc = jnp.concatenate([_to_columns(sc, rid, inc[:, :m]), _to_columns(sc, rid, inc[:, m : 2 * m]), inc[:, 2 * m :]], axis=1)
+        m, nl = sc.det_air.shape[0], len(LEDGER_KEYS)
+        inc = jnp.concatenate([_to_columns(sc, rid, inc[:, :m]), _to_columns(sc, rid, inc[:, m : 2 * m]), inc[:, 2 * m : 2 * m + nl],
+                               jnp.zeros((rid.shape[0], m_out), inc.dtype)], axis=1)
         return rays, tally + inc.astype(tally.dtype), next_local
 
     return jax.lax.fori_loop(0, opt.steps_per_call, one_step, state)
@@ -815,7 +823,7 @@ def _initial_state(lanes_total: int, ndev: int, m: int, m_out: int, dtype, tdtyp
     L = lanes_total
     rays = (z(L, 3), z(L, 3), z(L), jnp.zeros(L, bool), z(L), z(L), jnp.zeros(L, jnp.int32), jnp.zeros(L, jnp.int32),
             jnp.zeros(L, idt), jnp.zeros(L, bool), z(L), z(L), z(L, 3), jnp.zeros((L, m, 3), dtype).at[..., 2].set(1.0), z(L, m), z(L, m))
-    tally = z(L, 2 * m_out + len(LEDGER_KEYS) + 1, t=tdtype)
+    tally = z(L, 3 * m_out + len(LEDGER_KEYS), t=tdtype)
     return rays, tally, jnp.zeros(ndev, idt)
 
 
@@ -877,9 +885,9 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
     illum_alpha, det_alpha = geometry.illumination_aperture_deg, geometry.detector_aperture_deg
     if reverse:
         sources, detectors, illum_alpha, det_alpha = detectors, sources, det_alpha, illum_alpha
-    share = np.zeros(1) if reverse_share is None else np.atleast_1d(np.asarray(reverse_share, dtype=float))
-    with np.errstate(divide="ignore"):
-        log_share = np.log(1.0 / share if reverse else share)  # log(rays of the other pass / this pass's), per detector
+    share = 0.0 if reverse_share is None else float(reverse_share)
+    # log(rays of the other pass / this pass's rays), per detector (forward) or per source (reverse)
+    log_share = -1e30 if share <= 0 else float(np.log(1.0 / share if reverse else share))
     src_in = np.asarray(refract_into_coat(jnp.asarray(sources), float(n)))
     return _Scene(
         cols=_pack_platelets(array, dtype, n_pad),
@@ -899,13 +907,13 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
         det_cos_alpha=arr(np.cos(np.deg2rad(det_alpha))),
         brdf=brdf,
         slope_sd=arr(slope_sd(waviness_deg)),
-        log_reverse_share=jnp.asarray(np.broadcast_to(np.maximum(log_share, -1e30), (detectors.shape[0],)), dtype),
+        log_reverse_share=jnp.full((detectors.shape[0],), log_share, dtype),
         illum_in_z=arr(np.abs(src_in[:, 2])),
         max_cells=int(min_cells),
         shadow_cells=_shadow_cell_bound(shape, cell, h_b, float(n)),
         wavy=waviness_deg > 0.0,
         mis=bool(mis) and det_alpha > 0.0 and not waviness_deg > 0.0,
-        bidir=bool(np.any(share > 0)),
+        bidir=share > 0,
     )
 
 
@@ -921,30 +929,32 @@ def _default_grid(array):
 
 
 def _summarise(tally: np.ndarray, m: int, batches: int):
+    """Estimates, batch-means SE, per-batch estimates, energy ledger and rays per column of one pass."""
     lanes = tally.shape[0]
+    nl = len(LEDGER_KEYS)
     groups = tally.reshape(lanes // batches, batches, -1).sum(axis=0)  # lane l -> batch l mod B
-    counts = groups[:, -1]
+    counts = groups[:, -m:]  # rays per batch and output column (the reverse pool: per source)
     total = tally.sum(axis=0)
-    N = total[-1]
-    est = total[: 2 * m] / N
-    per_batch = groups[:, : 2 * m] / np.maximum(counts, 1)[:, None]
-    wgt = counts / np.mean(counts)
-    se = np.sqrt(np.sum((wgt[:, None] * (per_batch - est)) ** 2, axis=0) / (batches * (batches - 1)))
-    ledger = total[2 * m : 2 * m + len(LEDGER_KEYS)] / N
-    return est, se, per_batch, ledger, int(N)
+    N = np.maximum(total[-m:], 1.0)
+    est = total[: 2 * m] / np.tile(N, 2)
+    per_batch = groups[:, : 2 * m] / np.tile(np.maximum(counts, 1.0), 2)
+    wgt = np.tile(counts / np.maximum(np.mean(counts, axis=0), 1e-300), 2)
+    se = np.sqrt(np.sum((wgt * (per_batch - est)) ** 2, axis=0) / (batches * (batches - 1)))
+    ledger = total[2 * m : 2 * m + nl] / N[0]
+    return est, se, per_batch, ledger, total[-m:]
 
 
 def _combine(parts, m: int):
-    """Forward pass + reverse pool (whose column j is source j, i.e. detector j): estimates,
-    batch-means SE, per-batch estimates, the forward pass's energy ledger and the rays of all passes."""
-    est, _, per_batch, ledger, _ = parts[0]
-    est, per_batch = est.copy(), per_batch.copy()
-    for e, _, pb, _, n in parts[1:]:  # rays r = 0 … n − 1 go to source r mod m
-        est[:m] += e[:m] * n / (n // m + (np.arange(m) < n % m))
-        per_batch[:, :m] += m * pb[:, :m]
-    batches = per_batch.shape[0]
-    se = np.sqrt(np.sum((per_batch - per_batch.mean(axis=0)) ** 2, axis=0) / (batches * (batches - 1))) if len(parts) > 1 else parts[0][1]
-    return est, se, per_batch, ledger, sum(p[4] for p in parts)
+    """Forward pass + reverse pool (column j = source j = detector j): estimates, SE (independent
+    passes add in quadrature), per-batch sums, the forward pass's energy ledger, rays of all passes."""
+    est, se, per_batch, ledger, n = parts[0]
+    est, per_batch, var, rays = est.copy(), per_batch.copy(), se**2, int(n[0])
+    for e, s, pb, _, n in parts[1:]:
+        est[:m] += e[:m]
+        per_batch[:, :m] += pb[:, :m]
+        var[:m] += s[:m] ** 2
+        rays += int(n.sum())
+    return est, np.sqrt(var), per_batch, ledger, rays
 
 
 def lightness_with_se(R, se):
@@ -1060,7 +1070,7 @@ def trace(
         parts = []
         for item in live:
             sc, key, state, frac = item
-            target = max(1, int(np.ceil(frac * n_local)))
+            target = max(int(np.ceil(frac * n_local)), -(-sc.illum_air.shape[0] // ndev))  # every source gets rays
             nl = put(jnp.asarray(target, idt))
             while True:
                 state = run(sc, key, state, nl, single)

@@ -63,8 +63,9 @@ def _fresnel_T(theta_deg):
 def test_white_furnace(empty_scene, opt):
     """No platelets, Lambertian primer ρ under the coat: R = T_i T_o ρ / (n² (1 − ρ r_i)).
 
-    Forward alone, and bidirectional (forward and reverse passes weighted by the path densities,
-    which for primer paths differ by the beams' cosines), which must sum to the same closed form.
+    Forward alone, and bidirectional: for pure primer paths the two path densities are equal, so
+    this checks the weights' ray-count factor and how the forward pass and the reverse pool are
+    combined (the density ratio itself is checked by `test_bidirectional_mis`).
     """
     arr, grid = empty_scene
     geo = ma98_geometry(45.0)
