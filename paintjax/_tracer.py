@@ -104,6 +104,7 @@ from ._optics import fresnel_dielectric
 #: Keys of the energy ledger, in order.
 LEDGER_KEYS = ("top_reflection", "exited", "absorbed_platelets", "absorbed_primer", "roulette", "caps")
 _BIG = 1e30
+_MAX_GROWTH = 4.0  # adaptive rounds grow the rays at most this factor
 
 
 class TracerOptions(eqx.Module):
@@ -1086,9 +1087,9 @@ def trace(
         worst = float(np.max(Lse / target_se_lstar))
         if worst <= 1.0 or n_local >= limit_local:
             break
-        # rays for the target from this round's SE, at most 4× per round: a rare spike in an early,
-        # small round inflates its SE estimate, and an uncapped step would overshoot on it
-        grow = int(np.ceil(n_local * min(worst**2 * 1.1 - 1.0, 3.0)))
+        # rays for the target from this round's SE, at most _MAX_GROWTH× per round: a rare spike in an
+        # early, small round inflates its SE estimate, and an uncapped step would overshoot on it
+        grow = int(np.ceil(n_local * min(worst**2 * 1.1 - 1.0, _MAX_GROWTH - 1.0)))
         n_local = min(limit_local, n_local + max(grow, opt.lanes))
     seconds = time.perf_counter() - t0
     R, Rse = est[:m], se[:m]

@@ -18,7 +18,7 @@ from .simulate import DEFAULT_TARGET_SE, MIRROR_APERTURE_DEG
 SAMPLES = ("silver1", "silver2")
 #: Ray ceiling per sample of the hybrid column (all passes). The narrow coherent lobe of the platelets
 #: makes 75°/110° spiky: SE ≤ 0.5 took 1.48 M rays for Silver #1 with the forward tracer alone and
-#: 160 k with bidirectional MIS (seed 0); the ceiling guards against the heavy tail.
+#: 131 k with bidirectional MIS (seed 0); the ceiling guards against the heavy tail.
 DEFAULT_MAX_RAYS = 1_500_000
 
 
