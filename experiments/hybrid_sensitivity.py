@@ -11,7 +11,15 @@ count so every variant sees the same random numbers) under one change at a time,
 * `waviness 4°`: wavy clearcoat, RMS slope 4°;
 * `primer 0.1` / `primer 0.6`: darker / lighter grey primer;
 * `kirchhoff BRDF`: the analytic isotropic 3-D Kirchhoff (Beckmann) platelet BRDF instead of the
-  wave-based table (same σ, τ).
+  wave-based table (same σ, τ);
+* `single scatter, kirchhoff`: both at once, the tracer's counterpart of the analytic model below.
+
+Beside the tracer rows, the analytic single-scatter model (`_microfacet`, no tracing) with the same
+Kirchhoff platelet BRDF in its two occlusion limits: `exit_occlusion=True` (entry and exit paths
+attenuated independently, exact for platelets much narrower than the mean free path; the
+`table1` analytic column) and `exit_occlusion=False` (the exit path always clear). The tracer's
+single-scatter row against these two shows how strongly the 16 µm platelets correlate the entry
+and exit paths (the hot spot) at the measured PVC, where the mean free path is ≈ t/PVC = 5 µm.
 
 Writes experiments/output/hybrid_sensitivity/{summary.json, sensitivity.png} (atomic). Each row
 gives L*, its standard error and the difference to the measurement.
@@ -31,10 +39,12 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from paintjax import load_sample  # noqa: E402
+from paintjax import GammaTilt, load_sample, ma98_geometry, reflectance_factor_to_lightness  # noqa: E402
+from paintjax._beckmann import BeckmannBRDF  # noqa: E402
 from paintjax._cache import enable_compilation_cache  # noqa: E402
 from paintjax._commands.simulate import simulate  # noqa: E402
 from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
+from paintjax._microfacet import microfacet_reflectance_factor  # noqa: E402
 from paintjax._tracer import TracerOptions  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "hybrid_sensitivity"
@@ -47,7 +57,9 @@ VARIANTS = {
     "primer 0.1": {"primer_albedo": 0.1},
     "primer 0.6": {"primer_albedo": 0.6},
     "kirchhoff BRDF": {"brdf": "kirchhoff"},
+    "single scatter, kirchhoff": {"single_scatter": True, "brdf": "kirchhoff"},
 }
+ANALYTIC = {"analytic, independent occlusion": True, "analytic, exit path clear": False}
 
 
 def plot(result: dict, path: Path) -> Path:
@@ -62,6 +74,8 @@ def plot(result: dict, path: Path) -> Path:
     for k, (name, row) in enumerate(result["variants"].items()):
         ax.errorbar(gamma + 0.6 * (k - 3), row["L_star"], yerr=row["L_star_se"], fmt="-" if name == "baseline" else "--",
                     marker="s", ms=3, label=f"{name} (RMS {row['rms']:.1f})")
+    for name, row in result["analytic"].items():
+        ax.plot(gamma, row["L_star"], ":", marker="v", ms=4, color="k" if "independent" in name else "darkcyan", label=f"{name} (RMS {row['rms']:.1f})")
     ax.set_xlabel("aspecular angle [deg]")
     ax.set_ylabel("L*")
     ax.set_title(f"{result['sample']}: hybrid model under one change at a time ({result['rays']} rays, seed 0)")
@@ -88,8 +102,16 @@ def main(argv=None) -> int:
         row = {"L_star": L, "L_star_se": np.asarray(r["L_star_se"]), "delta": L - measured,
                "rms": float(np.sqrt(np.mean((L - measured) ** 2))), "energy": r["energy"], "seconds": time.perf_counter() - t0}
         result["variants"][name] = row
-        print(f"{name:>15}: L* " + " ".join(f"{x:6.1f}" for x in L) + "  Δ " + " ".join(f"{x:+6.1f}" for x in row["delta"])
+        print(f"{name:>32}: L* " + " ".join(f"{x:6.1f}" for x in L) + "  Δ " + " ".join(f"{x:+6.1f}" for x in row["delta"])
               + f"  RMS {row['rms']:.1f}  ({row['seconds']:.0f} s)", flush=True)
+    geometry, tilt = ma98_geometry(45.0), GammaTilt(s.tilt_shape.value, s.tilt_scale.value)
+    platelet = BeckmannBRDF(s.sigma.value, s.tau.value, n_medium=s.binder_index)
+    result["analytic"] = {}
+    for name, exit_occlusion in ANALYTIC.items():
+        L = np.asarray(reflectance_factor_to_lightness(microfacet_reflectance_factor(
+            geometry, tilt, n=s.binder_index, platelet=platelet, exit_occlusion=exit_occlusion)))
+        result["analytic"][name] = {"L_star": L, "delta": L - measured, "rms": float(np.sqrt(np.mean((L - measured) ** 2)))}
+        print(f"{name:>32}: L* " + " ".join(f"{x:6.1f}" for x in L) + "  Δ " + " ".join(f"{x:+6.1f}" for x in L - measured))
     OUT.mkdir(parents=True, exist_ok=True)
     atomic_write_json(OUT / "summary.json", result)
     print(f"plot: {plot(result, OUT / 'sensitivity.png')}; data: {OUT / 'summary.json'}")
