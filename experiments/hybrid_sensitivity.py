@@ -15,11 +15,11 @@ count so every variant sees the same random numbers) under one change at a time,
 * `single scatter, kirchhoff`: both at once, the tracer's counterpart of the analytic model below.
 
 Beside the tracer rows, the analytic single-scatter model (`_microfacet`, no tracing) with the same
-Kirchhoff platelet BRDF in its two occlusion limits: `exit_occlusion=True` (entry and exit paths
-attenuated independently, exact for platelets much narrower than the mean free path; the
-`table1` analytic column) and `exit_occlusion=False` (the exit path always clear). The tracer's
-single-scatter row against these two shows how strongly the 16 µm platelets correlate the entry
-and exit paths (the hot spot) at the measured PVC, where the mean free path is ≈ t/PVC = 5 µm.
+Kirchhoff platelet BRDF: entry and exit paths attenuated independently (exact for platelets much
+narrower than the mean free path), correlated over the sample's platelet widths (`_hot_spot`, the
+`table1` analytic model), and the exit path always clear (`exit_occlusion=False`). The tracer's
+single-scatter row against these shows how strongly the 16 µm platelets correlate the entry and
+exit paths at the measured PVC, where the mean free depth is t/PVC = 5 µm.
 
 Writes experiments/output/hybrid_sensitivity/{summary.json, sensitivity.png} (atomic). Each row
 gives L*, its standard error and the difference to the measurement.
@@ -39,7 +39,7 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from paintjax import GammaTilt, load_sample, ma98_geometry, reflectance_factor_to_lightness  # noqa: E402
+from paintjax import GammaTilt, HotSpot, load_sample, ma98_geometry, reflectance_factor_to_lightness  # noqa: E402
 from paintjax._beckmann import BeckmannBRDF  # noqa: E402
 from paintjax._cache import enable_compilation_cache  # noqa: E402
 from paintjax._commands.simulate import simulate  # noqa: E402
@@ -59,7 +59,6 @@ VARIANTS = {
     "kirchhoff BRDF": {"brdf": "kirchhoff"},
     "single scatter, kirchhoff": {"single_scatter": True, "brdf": "kirchhoff"},
 }
-ANALYTIC = {"analytic, independent occlusion": True, "analytic, exit path clear": False}
 
 
 def plot(result: dict, path: Path) -> Path:
@@ -75,7 +74,7 @@ def plot(result: dict, path: Path) -> Path:
         ax.errorbar(gamma + 0.6 * (k - 3), row["L_star"], yerr=row["L_star_se"], fmt="-" if name == "baseline" else "--",
                     marker="s", ms=3, label=f"{name} (RMS {row['rms']:.1f})")
     for name, row in result["analytic"].items():
-        ax.plot(gamma, row["L_star"], ":", marker="v", ms=4, color="k" if "independent" in name else "darkcyan", label=f"{name} (RMS {row['rms']:.1f})")
+        ax.plot(gamma, row["L_star"], ":", marker="v", ms=4, color={"analytic, independent occlusion": "k", "analytic, hot spot": "darkred"}.get(name, "darkcyan"), label=f"{name} (RMS {row['rms']:.1f})")
     ax.set_xlabel("aspecular angle [deg]")
     ax.set_ylabel("L*")
     ax.set_title(f"{result['sample']}: hybrid model under one change at a time ({result['rays']} rays, seed 0)")
@@ -107,9 +106,11 @@ def main(argv=None) -> int:
     geometry, tilt = ma98_geometry(45.0), GammaTilt(s.tilt_shape.value, s.tilt_scale.value)
     platelet = BeckmannBRDF(s.sigma.value, s.tau.value, n_medium=s.binder_index)
     result["analytic"] = {}
-    for name, exit_occlusion in ANALYTIC.items():
+    occlusion = {"analytic, independent occlusion": {}, "analytic, hot spot": {"hot_spot": HotSpot.for_sample(s)},
+                 "analytic, exit path clear": {"exit_occlusion": False}}
+    for name, kw in occlusion.items():
         L = np.asarray(reflectance_factor_to_lightness(microfacet_reflectance_factor(
-            geometry, tilt, n=s.binder_index, platelet=platelet, exit_occlusion=exit_occlusion)))
+            geometry, tilt, n=s.binder_index, platelet=platelet, **kw)))
         result["analytic"][name] = {"L_star": L, "delta": L - measured, "rms": float(np.sqrt(np.mean((L - measured) ** 2)))}
         print(f"{name:>32}: L* " + " ".join(f"{x:6.1f}" for x in L) + "  Δ " + " ".join(f"{x:+6.1f}" for x in L - measured))
     OUT.mkdir(parents=True, exist_ok=True)

@@ -39,6 +39,7 @@ from ._lightness import (
     spectral_to_xyz,
     spectral_weights,
 )
+from ._hot_spot import HotSpot
 from ._microfacet import microfacet_lightness, microfacet_reflectance_factor, single_scatter_brdf
 from ._grid import UniformGrid, build_grid, candidate_pairs
 from ._microstructure import (

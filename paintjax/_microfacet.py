@@ -10,6 +10,8 @@ the coat,
     D = A(ω_i) cosθ_o                          (no exit occlusion),
 
 which for mirror platelets collapses to f_in = R(ω_i·h) p(h) / (4 D), h the half vector. The
+independent exit occlusion holds for platelets much narrower than the mean free path; for wide
+ones the entry and exit paths are correlated (`_hot_spot`: D → μ_i μ_o / G). The
 reflectance factor through a flat coat of index n is R(γ) = π T(θ_i) T(θ_o) f_in / n² (brief §3).
 With exit occlusion the model is reciprocal. The platelet BRDF is pluggable: any
 `AbstractPlateletBRDF` is integrated over the tilt distribution numerically.
@@ -23,6 +25,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF
+from ._hot_spot import HotSpot
 from ._instrument import Geometry
 from ._interface import check_waviness, gauss_hermite_facets, seen_through_facet, slope_sd
 from ._lightness import reflectance_factor_to_lightness
@@ -54,11 +57,13 @@ def to_local(w: Float[Array, "... 3"], m: Float[Array, "... 3"]) -> Float[Array,
     return jnp.stack([jnp.sum(w * t1, -1), jnp.sum(w * t2, -1), jnp.sum(w * m, -1)], axis=-1)
 
 
-def _denominator(tilt: GammaTilt, wi, wo, exit_occlusion: bool):
+def _denominator(tilt: GammaTilt, wi, wo, exit_occlusion: bool, hot_spot: HotSpot | None = None):
     ci, co = wi[..., 2], wo[..., 2]
-    if exit_occlusion:
-        return tilt.projected_area(ci) * co + tilt.projected_area(co) * ci
-    return tilt.projected_area(ci) * co
+    if not exit_occlusion:
+        return tilt.projected_area(ci) * co
+    if hot_spot is not None:  # correlated paths: μ_i μ_o / G (G = 1/(α_i + α_o) without correlation)
+        return ci * co / hot_spot.joint_escape(wi, wo, tilt.projected_area(ci) / ci, tilt.projected_area(co) / co)
+    return tilt.projected_area(ci) * co + tilt.projected_area(co) * ci
 
 
 @eqx.filter_jit
@@ -69,6 +74,7 @@ def single_scatter_brdf(
     platelet: AbstractPlateletBRDF,
     *,
     exit_occlusion: bool = True,
+    hot_spot: HotSpot | None = None,
     tilt_nodes: int = 256,
     azimuth_nodes: int = 256,
 ) -> Float[Array, "..."]:
@@ -79,10 +85,12 @@ def single_scatter_brdf(
         tilt: platelet tilt law.
         platelet: platelet BRDF; mirrors use the closed form, others tilt/azimuth quadrature.
         exit_occlusion: attenuate the exiting ray by the same platelet medium (reciprocal form).
+        hot_spot: with `exit_occlusion`, correlate the entry and exit attenuation over the
+            platelets' finite width (`HotSpot`); None: independent (platelets ≪ mean free path).
         tilt_nodes, azimuth_nodes: quadrature sizes for non-delta platelet BRDFs (the defaults
             resolve platelet lobes down to ~0.5° wide; a 0.35° lobe needs them).
     """
-    denom = _denominator(tilt, wi, wo, exit_occlusion)
+    denom = _denominator(tilt, wi, wo, exit_occlusion, hot_spot)
     if platelet.is_delta:
         h = wi + wo
         h = h / jnp.linalg.norm(h, axis=-1, keepdims=True)
@@ -118,6 +126,7 @@ def microfacet_reflectance_factor(
     n: float = 1.5,
     platelet: AbstractPlateletBRDF | None = None,
     exit_occlusion: bool = True,
+    hot_spot: HotSpot | None = None,
     aperture_nodes: int = 6,
     waviness_deg: float = 0.0,
     waviness_nodes: int = 8,
@@ -134,7 +143,7 @@ def microfacet_reflectance_factor(
         tilt: platelet tilt law.
         n: coat (and binder) refractive index.
         platelet: platelet BRDF (default: aluminium mirror in the binder at 550 nm).
-        exit_occlusion: see `single_scatter_brdf`.
+        exit_occlusion, hot_spot: see `single_scatter_brdf`.
         aperture_nodes: radial and azimuthal nodes of each aperture's cone quadrature.
         waviness_deg: RMS slope angle of the clearcoat surface [deg] (0 = flat).
         waviness_nodes: Gauss–Hermite nodes per slope component.
@@ -153,7 +162,7 @@ def microfacet_reflectance_factor(
     facets, facet_w = (jnp.asarray(a) for a in gauss_hermite_facets(waviness_deg, waviness_nodes))
     wi, Ti = _through_coat(wi_air, facets, facet_w, n, slope_sd(waviness_deg))  # (qi·q, 3), (qi·q,)
     wo, To = _through_coat(wo_air, facets, facet_w, n, slope_sd(waviness_deg))  # (m, qo·q, 3), (m, qo·q)
-    f = single_scatter_brdf(wi[None, None, :, :], wo[:, :, None, :], tilt, platelet, exit_occlusion=exit_occlusion)
+    f = single_scatter_brdf(wi[None, None, :, :], wo[:, :, None, :], tilt, platelet, exit_occlusion=exit_occlusion, hot_spot=hot_spot)
     R = jnp.pi * Ti[None, None, :] * To[:, :, None] * f / n**2
     return jnp.einsum("moi,o,i->m", R, jnp.repeat(wo_w, facets.shape[0]), jnp.repeat(wi_w, facets.shape[0]))
 

@@ -18,8 +18,12 @@ def test_microfacet_json_round_trip(capsys):
     assert set(out) == {"aspecular_deg", "reflectance_factor", "L_star", "flop_index"}
     assert out["aspecular_deg"] == list(pj.STANDARD_ASPECULAR)
     s = pj.load_sample("silver1")
-    expected = pj.microfacet_reflectance_factor(pj.ma98_geometry(), pj.GammaTilt(s.tilt_shape.value, s.tilt_scale.value))
+    tilt = pj.GammaTilt(s.tilt_shape.value, s.tilt_scale.value)
+    expected = pj.microfacet_reflectance_factor(pj.ma98_geometry(), tilt, hot_spot=pj.HotSpot.for_sample(s))
     np.testing.assert_allclose(out["reflectance_factor"], np.asarray(expected), rtol=1e-12)
+    assert main(["microfacet", "--sample", "silver1", "--no-hot-spot", "--json"]) == 0
+    independent = json.loads(capsys.readouterr().out)
+    np.testing.assert_allclose(independent["reflectance_factor"], np.asarray(pj.microfacet_reflectance_factor(pj.ma98_geometry(), tilt)), rtol=1e-12)
     L = np.asarray(out["L_star"])
     np.testing.assert_allclose(L, pj.lightness_np(100 * np.asarray(out["reflectance_factor"])), atol=1e-9)
     assert out["flop_index"] == pytest.approx(float(pj.flop_index(L[0], L[2], L[4])))

@@ -1,0 +1,91 @@
+"""The hot spot (paintjax._hot_spot): overlap fraction, depth integral, limits, and its use in the
+analytic single-scatter model. The tracer comparison (wide Poisson platelets) is in test_tracer.py."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy import integrate
+
+from paintjax import GammaTilt, ma98_geometry
+from paintjax._beckmann import BeckmannBRDF
+from paintjax._hot_spot import HotSpot, square_overlap_fraction
+from paintjax._microfacet import microfacet_reflectance_factor
+
+
+def _unit(v):
+    v = np.asarray(v, dtype=float)
+    return jnp.asarray(v / np.linalg.norm(v, axis=-1, keepdims=True))
+
+
+def test_square_overlap_fraction_matches_monte_carlo():
+    rng = np.random.default_rng(0)
+    psi = rng.uniform(0.0, 2.0 * np.pi, 200_000)
+    for x in (0.0, 0.2, 0.7, 1.0, 1.1, 1.3, 1.5):
+        sample = np.clip(1 - x * np.abs(np.cos(psi)), 0, None) * np.clip(1 - x * np.abs(np.sin(psi)), 0, None)
+        se = sample.std() / np.sqrt(sample.size)
+        assert abs(float(square_overlap_fraction(x)) - sample.mean()) < 4 * se + 1e-12, x
+
+
+def test_joint_escape_matches_direct_quadrature():
+    """One width, horizontal platelets: G against nested adaptive quadrature of the defining integral."""
+    w, ell = 16.0, 5.0
+    hot = HotSpot.for_layer((w * 0.99999, w, w * 1.00001), thickness=0.02, pvc=0.02 / ell)
+    wi = _unit([0.47, 0.0, 0.88])
+    for wo in ([-0.33, 0.0, 0.94], [0.0, 0.0, 1.0], [0.3, 0.2, 0.93], [0.6, 0.0, 0.8]):
+        wo = _unit(wo)
+        d = np.asarray(wi[:2] / wi[2] - wo[:2] / wo[2])
+        length = ell * np.linalg.norm(d)
+
+        def inner(u):
+            return integrate.quad(lambda v: float(square_overlap_fraction(v * length / w)), 0.0, u, limit=200)[0]
+
+        ref = integrate.quad(lambda u: np.exp(-2.0 * u + inner(u)), 0.0, 60.0, limit=200)[0]
+        got = float(hot.joint_escape(wi, wo, 1.0, 1.0))
+        assert abs(got - ref) < 2e-4 * ref, (np.asarray(wo), got, ref)
+
+
+def test_limits():
+    wi, wo = _unit([0.47, 0.0, 0.88]), _unit([-0.2, 0.1, 0.97])
+    ai, ao = 1.1, 0.9
+    tiny = HotSpot.for_layer((0.001, 0.0011, 0.0012), thickness=1.0, pvc=0.2)
+    assert float(tiny.joint_escape(wi, wo, ai, ao)) == pytest.approx(1.0 / (ai + ao), rel=1e-3)  # independent paths
+    hot = HotSpot.for_layer(None, thickness=1.0, pvc=0.2)
+    assert float(hot.joint_escape(wi, wi, ai, ao)) == pytest.approx(1.0 / (ai + ao - np.sqrt(ai * ao)), rel=1e-10)  # retro
+    # the correlation weakens as the exit moves away from the retro direction
+    far = [float(hot.joint_escape(wi, _unit([-s, 0.0, 1.0]), 1.0, 1.0)) for s in (-0.5, 0.0, 0.5, 1.0)]
+    assert np.all(np.diff(far) < 0) and 0.5 < far[-1] < far[0] < 1.0
+
+
+def test_single_scatter_without_correlation_is_the_independent_model():
+    geo, tilt = ma98_geometry(45.0), GammaTilt(2.29, 2.18)
+    brdf = BeckmannBRDF(0.1, 0.6, n_medium=1.5)
+    tiny = HotSpot.for_layer((0.001, 0.0011, 0.0012), thickness=1.0, pvc=0.2)
+    a = np.asarray(microfacet_reflectance_factor(geo, tilt, platelet=brdf))
+    b = np.asarray(microfacet_reflectance_factor(geo, tilt, platelet=brdf, hot_spot=tiny))
+    np.testing.assert_allclose(b, a, rtol=1e-3)
+    c = np.asarray(microfacet_reflectance_factor(geo, tilt, platelet=brdf, hot_spot=HotSpot.for_layer((8.0, 16.0, 30.0))))
+    assert np.all(c > 1.5 * a)  # the sample's platelets: 1.6-1.9x brighter single scattering
+
+
+@pytest.mark.parametrize("kwargs, word", [({"pvc": 0.0}, "pvc"), ({"pvc": 1.2}, "pvc"), ({"thickness": -1.0}, "thickness")])
+def test_bad_input(kwargs, word):
+    with pytest.raises(ValueError, match=word):
+        HotSpot.for_layer(None, **kwargs)
+
+
+def test_analytic_forward_takes_the_hot_spot():
+    """The inverse layer's analytic forward map with a hot spot is the `paintjax microfacet` model (mirrors)."""
+    import paintjax as pj
+    from paintjax._commands.microfacet import compute
+
+    s = pj.load_sample("silver1")
+    theta = np.array([[s.tilt_shape.value, s.tilt_scale.value, 0.0]])
+    hot = pj.AnalyticForward(rough=False, hot_spot=pj.HotSpot.for_sample(s))
+    plain = pj.AnalyticForward(rough=False)
+    np.testing.assert_allclose(np.asarray(hot(theta))[0], compute("silver1")["L_star"], rtol=1e-9)
+    np.testing.assert_allclose(np.asarray(plain(theta))[0], compute("silver1", hot_spot=False)["L_star"], rtol=1e-9)
+    assert hot.fingerprint() != plain.fingerprint()
+    with pytest.raises(ValueError, match="hot_spot"):
+        pj.AnalyticForward(hot_spot="yes")
