@@ -27,6 +27,7 @@ import argparse
 import json
 import os
 import platform
+import sys
 import time
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
@@ -80,6 +81,11 @@ def plain_tracer(sc, opt, key, rays: int, batch: int) -> float:
     return time.perf_counter() - t0
 
 
+def say(text: str) -> None:
+    """Progress on stderr (a run cut short by a time limit still leaves its stages in the log)."""
+    print(text, file=sys.stderr, flush=True)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rays", type=int, default=65536, help="rays of the throughput run")
@@ -118,11 +124,14 @@ def main() -> int:
     for o in (opt, opt_fwd):  # compile + warm-up (the bidirectional passes' shapes, the forward tracer alone)
         T.trace(array, geo, brdf, rays=8 * opt.lanes, seed=99, options=o, **kw)
     t_compile = time.perf_counter() - t0
+    say(f"{jax.devices()[0].platform}: array {t_array:.1f} s, compile + warm-up {t_compile:.1f} s")
     c0 = time.process_time()
     res = T.trace(array, geo, brdf, rays=args.rays, seed=1, options=opt_fwd, **kw)
     cpu = time.process_time() - c0
     rate = res.rays / res.seconds
+    say(f"forward throughput {rate:.0f} rays/s ({res.rays} rays), L* SE {np.round(res.L_star_se, 2).tolist()}")
     res_bd = T.trace(array, geo, brdf, rays=args.rays, seed=1, options=opt, **kw)
+    say(f"bidirectional throughput {res_bd.rays / res_bd.seconds:.0f} rays/s, L* SE {np.round(res_bd.L_star_se, 2).tolist()}")
 
     ttp = ttp_fwd = None
     runs, runs_fwd = [], []
@@ -130,9 +139,11 @@ def main() -> int:
         for seed in (int(x) for x in args.ttp_seeds.split(",")):
             runs.append(T.trace(array, geo, brdf, rays=args.rays, seed=seed, target_se_lstar=args.target_se, max_rays=args.max_rays,
                                 options=opt, **kw))
+            say(f"seed {seed}: time to SE <= {args.target_se} {runs[-1].seconds:.2f} s, {runs[-1].rays} rays")
             if args.forward_max_rays > 0 and args.reverse_share > 0:
                 runs_fwd.append(T.trace(array, geo, brdf, rays=args.rays, seed=seed, target_se_lstar=args.target_se,
                                         max_rays=args.forward_max_rays, options=opt_fwd, **kw))
+                say(f"seed {seed}: forward alone {runs_fwd[-1].seconds:.2f} s, {runs_fwd[-1].rays} rays")
         ttp = runs[0]
         ttp_fwd = runs_fwd[0] if runs_fwd else None
 

@@ -44,6 +44,9 @@ def register(sub) -> None:
     p.add_argument("--rays", type=int, help=f"number of rays; default: as many as needed for an L* standard error ≤ {DEFAULT_TARGET_SE}")
     p.add_argument("--seed", type=int, default=0, help="random seed of the array and the rays (default 0)")
     p.add_argument("--single-scatter", action="store_true", help="score only the first scattering event of each path")
+    p.add_argument("--spectral", action="store_true",
+                   help="trace at 400, 450, …, 700 nm and combine under D65 and the CIE 1964 10° observer, as the instrument "
+                   "does (about 7× the time; adds a* and b*); default: one wavelength (0.5 µm for rough platelets)")
     add_json_argument(p)
     p.set_defaults(func=run)
 
@@ -91,25 +94,29 @@ def sample_array(sample: str, *, seed: int = 0, shape=None, scale=None, pvc=None
     )
 
 
-def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=None):
-    """The platelet BRDF of a `--brdf` choice (the wave table is built or read from the cache)."""
+def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=None, wavelength_um=None):
+    """The platelet BRDF of a `--brdf` choice (the wave table is built or read from the cache).
+
+    `wavelength_um` None keeps each BRDF's default wavelength (wave and Kirchhoff 0.5 µm, mirror 0.55 µm).
+    """
     from .._brdf import MirrorBRDF
 
     if kind not in BRDFS:
         raise ValueError(f"brdf must be one of {BRDFS}, got {kind!r}")
+    wl = {} if wavelength_um is None else {"wavelength_um": float(wavelength_um)}
     if kind == "mirror":
-        return MirrorBRDF(n_binder=n, reflectance=reflectance)
+        return MirrorBRDF(n_binder=n, reflectance=reflectance, **wl)
     if reflectance is not None:
         raise ValueError("reflectance applies to --brdf mirror only (rough BRDFs take their reflectance from Al optics)")
     if kind == "kirchhoff":
         from .._beckmann import BeckmannBRDF
 
-        return BeckmannBRDF(sigma, tau, n_medium=n)
+        return BeckmannBRDF(sigma, tau, n_medium=n, **wl)
     try:
         from .._brdf_table import platelet_brdf_table
     except ImportError as err:  # pragma: no cover - depends on the BRDF issue
         raise ValueError(f"brdf 'wave' is unavailable: {err}") from None
-    return platelet_brdf_table(sigma, tau, n_medium=n)
+    return platelet_brdf_table(sigma, tau, n_medium=n, **wl)
 
 
 def simulate(
@@ -131,12 +138,21 @@ def simulate(
     target_se: float = DEFAULT_TARGET_SE,
     max_rays: int = 4_000_000,
     options=None,
+    spectral: bool = False,
+    progress: bool = False,
 ) -> dict:
-    """Five-angle tracer prediction for a sample with overrides, as the CLI's JSON dict (plus extras)."""
+    """Five-angle tracer prediction for a sample with overrides, as the CLI's JSON dict (plus extras).
+
+    `spectral`: trace at the `SPECTRAL_NODES_NM` wavelengths (platelet BRDF at each, same array and
+    seed) and combine them under D65 and the CIE 1964 10° observer (`_spectral`); the result then
+    also holds "wavelengths_nm", "spectral_reflectance_factor", "XYZ" and "Lab". Otherwise one
+    wavelength (the BRDF's default). `progress` prints a line per wavelength.
+    """
     from .._grid import build_grid
     from .._instrument import STANDARD_ASPECULAR, ma98_geometry
     from .._lightness import flop_index
     from .._samples import load_sample
+    from .._spectral import SPECTRAL_NODES_NM, combine_spectral
     from .._tracer import trace
 
     t0 = time.perf_counter()
@@ -146,24 +162,33 @@ def simulate(
     n = s.binder_index
     sigma = s.sigma.value if sigma is None else sigma
     tau = s.tau.value if tau is None else tau
-    platelet = platelet_brdf(brdf, sigma=sigma, tau=tau, n=n, reflectance=reflectance)
+    wavelengths_um = [w / 1000.0 for w in SPECTRAL_NODES_NM] if spectral else [None]
+    platelets = [platelet_brdf(brdf, sigma=sigma, tau=tau, n=n, reflectance=reflectance, wavelength_um=w) for w in wavelengths_um]
     array = sample_array(s.name, seed=seed, shape=shape, scale=scale, pvc=pvc, thickness=thickness)
     grid = build_grid(array)
-    aperture = MIRROR_APERTURE_DEG if platelet.is_delta else 0.0
+    aperture = MIRROR_APERTURE_DEG if platelets[0].is_delta else 0.0
     geometry = ma98_geometry(45.0, STANDARD_ASPECULAR, detector_aperture_deg=aperture)
     kwargs = dict(grid=grid, n=n, clearcoat_thickness=s.clearcoat_thickness, primer_albedo=primer_albedo, waviness_deg=waviness, seed=seed,
                   single_scatter=single_scatter, options=options)
-    if rays is None:
-        res = trace(array, geometry, platelet, rays=131072, target_se_lstar=target_se, max_rays=max_rays, **kwargs)
+    if rays is None:  # the adaptive rule per wavelength: each run's SE ≤ target bounds the combination's
+        kwargs.update(rays=131072, target_se_lstar=target_se, max_rays=max_rays)
     else:
-        res = trace(array, geometry, platelet, rays=int(rays), **kwargs)
+        kwargs.update(rays=int(rays))
+    results = []
+    for w, platelet in zip(wavelengths_um, platelets):
+        results.append(trace(array, geometry, platelet, **kwargs))
+        if spectral and progress:
+            print(f"  {s.name} {1000 * w:.0f} nm: L* {np.round(results[-1].L_star, 1).tolist()}", flush=True)
+    res, spectrum = combine_spectral(results, SPECTRAL_NODES_NM) if spectral else (results[0], {})
     out = res.to_dict()
+    out.update(spectrum)
     out["seconds"] = time.perf_counter() - t0
     out["tracing_seconds"] = res.seconds
     out["sample"] = s.name
     out["brdf"] = brdf
     out["aperture_deg"] = aperture
     out["waviness_deg"] = float(waviness)
+    out["spectral"] = bool(spectral)
     out["histogram_reflectance_factor"] = res.histogram_reflectance_factor
     L = res.L_star
     out["flop_index"] = float(flop_index(L[0], L[2], L[4]))
@@ -174,6 +199,7 @@ def simulate(
 
 
 _JSON_KEYS = ("aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds")
+_SPECTRAL_KEYS = ("wavelengths_nm", "spectral_reflectance_factor", "Lab", "Lab_se")
 
 
 def run(args) -> int:
@@ -181,17 +207,21 @@ def run(args) -> int:
     r = simulate(
         args.sample, shape=args.shape, scale=args.scale, sigma=args.sigma, tau=args.tau, pvc=args.pvc,
         thickness=args.thickness, brdf=args.brdf, reflectance=args.reflectance, primer_albedo=args.primer_albedo,
-        waviness=args.waviness, rays=args.rays, seed=args.seed, single_scatter=args.single_scatter,
+        waviness=args.waviness, rays=args.rays, seed=args.seed, single_scatter=args.single_scatter, spectral=args.spectral,
+        progress=args.spectral and not args.json,
     )
     if args.json:
-        print_json({k: r[k] for k in _JSON_KEYS})
+        print_json({k: r[k] for k in _JSON_KEYS + (_SPECTRAL_KEYS if args.spectral else ())})
         return 0
     print(f"Ray tracer, {r['sample']}: {r['brdf']} platelets, {r['platelets']} in a {r['tile_um'][0]:.0f} × {r['tile_um'][1]:.0f} µm tile"
           f"{', detector aperture %.1f°' % r['aperture_deg'] if r['aperture_deg'] else ''}"
-          f"{', single scattering' if args.single_scatter else ''}")
-    print(f"{'aspecular':>10} {'R factor':>10} {'L*':>8} {'± SE':>6} {'measured':>9}")
-    for row in zip(r["aspecular_deg"], r["reflectance_factor"], r["L_star"], r["L_star_se"], r["measured_L_star"]):
-        print(f"{row[0]:>9.0f}° {row[1]:>10.4f} {row[2]:>8.1f} {row[3]:>6.2f} {row[4]:>9.1f}")
+          f"{', single scattering' if args.single_scatter else ''}"
+          f"{', spectral (D65, CIE 1964 10°; R factor = Y/100)' if args.spectral else ''}")
+    lab = r.get("Lab")
+    print(f"{'aspecular':>10} {'R factor':>10} {'L*':>8} {'± SE':>6} {'measured':>9}" + (f" {'a*':>6} {'b*':>6}" if lab is not None else ""))
+    for j, row in enumerate(zip(r["aspecular_deg"], r["reflectance_factor"], r["L_star"], r["L_star_se"], r["measured_L_star"])):
+        print(f"{row[0]:>9.0f}° {row[1]:>10.4f} {row[2]:>8.1f} {row[3]:>6.2f} {row[4]:>9.1f}"
+              + (f" {lab[j][1]:>6.2f} {lab[j][2]:>6.2f}" if lab is not None else ""))
     print(f"flop index: {r['flop_index']:.2f}")
     e = r["energy"]
     print("energy: " + ", ".join(f"{k.replace('_', ' ')} {v:.4f}" for k, v in e.items()) + f" (sum {sum(e.values()):.6f})")
