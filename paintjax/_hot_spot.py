@@ -112,7 +112,9 @@ class HotSpot(eqx.Module):
         alpha_i, alpha_o = jnp.asarray(alpha_i), jnp.asarray(alpha_o)
         mu_i, mu_o = wi[..., 2], wo[..., 2]
         d = wi[..., :2] / mu_i[..., None] - wo[..., :2] / mu_o[..., None]
-        length = self.mean_free_depth * jnp.sqrt(jnp.sum(d**2, axis=-1))  # lateral separation per unit u [µm]
+        d2 = jnp.sum(d**2, axis=-1)
+        tiny = d2 < 1e-24
+        length = jnp.where(tiny, 0.0, self.mean_free_depth * jnp.sqrt(jnp.where(tiny, 1.0, d2)))  # lateral separation per unit u [µm]
         root = jnp.sqrt(alpha_i * alpha_o)
         rate = alpha_i + alpha_o - root
         x, w = np.polynomial.laguerre.laggauss(_DEPTH_NODES)

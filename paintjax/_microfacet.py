@@ -60,6 +60,8 @@ def to_local(w: Float[Array, "... 3"], m: Float[Array, "... 3"]) -> Float[Array,
 def _denominator(tilt: GammaTilt, wi, wo, exit_occlusion: bool, hot_spot: HotSpot | None = None):
     ci, co = wi[..., 2], wo[..., 2]
     if not exit_occlusion:
+        if hot_spot is not None:
+            raise ValueError("hot_spot correlates the exit occlusion with the entry: it needs exit_occlusion=True")
         return tilt.projected_area(ci) * co
     if hot_spot is not None:  # correlated paths: μ_i μ_o / G (G = 1/(α_i + α_o) without correlation)
         return ci * co / hot_spot.joint_escape(wi, wo, tilt.projected_area(ci) / ci, tilt.projected_area(co) / co)

@@ -9,8 +9,9 @@ spectrum (held constant beyond the end nodes) against D65 × x̄ȳz̄(10°) on t
 
 h_k the hat functions of the nodes, W `spectral_weights` (a perfect reflector gives Y = 100). Runs
 with one seed are correlated: the reflectance factor's standard error is the bound Σ_k |ω_k| SE_k
-(Cauchy–Schwarz, attained for fully correlated runs); L*a*b* get batch-means standard errors of
-the linearised combination, batch b of every run taken together.
+(Cauchy–Schwarz, attained for fully correlated runs), and L* carries it; a* and b* get batch-means
+standard errors of the linearised combination, batch b of every run taken together (under common
+random numbers their node errors largely cancel, which a bound would not see).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from ._lightness import spectral_weights
 from ._tracer import TraceResult, lightness_with_se
 
 #: Node wavelengths [nm] of the spectral mode (every 50 nm across the visible; Y's weight outside
-#: 400–700 nm is 0.3 %).
+#: 400–700 nm is 0.03 %).
 SPECTRAL_NODES_NM = (400, 450, 500, 550, 600, 650, 700)
 
 _DELTA = 6.0 / 29.0
@@ -54,7 +55,7 @@ def combine_spectral(results: list[TraceResult], nodes_nm) -> tuple[TraceResult,
     Returns:
         (a `TraceResult` of the Y-weighted reflectance factor Y/100 with its bounded SE, L* and the
         Y-weighted energy ledger; a dict with "wavelengths_nm", "spectral_reflectance_factor"
-        (K, m), "XYZ" (m, 3), "Lab" (m, 3) and "Lab_se" (m, 3), its batch-means standard error).
+        (K, m), "XYZ" (m, 3), "Lab" (m, 3) and "Lab_se" (m, 3): L* the bound, a*, b* batch means).
     """
     omega = spectral_node_weights(nodes_nm)
     if len(results) != omega.shape[1]:
@@ -79,7 +80,7 @@ def combine_spectral(results: list[TraceResult], nodes_nm) -> tuple[TraceResult,
     )
     xyz = (omega @ R).T  # (m, 3)
     white = omega.sum(axis=1)
-    # SE of L*a*b* by batch means: the runs share the seed, so batch b of every run is linearised
+    # SE of a*, b* by batch means: the runs share the seed, so batch b of every run is linearised
     # together, Lab_b ≈ Lab + Σ_k D_k (B_kb − R_k) with D_k = ∂Lab/∂R_k = J(XYZ) ω_k (J: lab_from_xyz).
     t = xyz / white
     tt = np.maximum(t, 1e-300)
@@ -92,5 +93,6 @@ def combine_spectral(results: list[TraceResult], nodes_nm) -> tuple[TraceResult,
     B = np.stack([np.asarray(r.batch_reflectance_factor) for r in results])  # (K, batches, m)
     e = np.einsum("mck,kbm->bmc", D, B - B.mean(axis=1, keepdims=True))
     lab_se = e.std(axis=0, ddof=1) / np.sqrt(e.shape[0])
+    lab_se[:, 0] = L_se  # one L* standard error in every output: the bound of the reflectance factor's
     return combined, {"wavelengths_nm": np.asarray(nodes_nm, dtype=float), "spectral_reflectance_factor": R, "XYZ": xyz,
                       "Lab": lab_from_xyz(xyz, white), "Lab_se": lab_se}

@@ -46,6 +46,24 @@ def test_joint_escape_matches_direct_quadrature():
         assert abs(got - ref) < 2e-4 * ref, (np.asarray(wo), got, ref)
 
 
+def test_size_law_weights_each_platelet_by_its_area():
+    """ρ(s) of a size law = E[w² ρ_w(s)] / E[w²], against Monte Carlo widths drawn from the law."""
+    from paintjax._sizes import LogNormalSizes
+
+    sizes = LogNormalSizes.from_quantiles(8.0, 16.0, 30.0)
+    hot = HotSpot.for_layer(sizes, thickness=1.0, pvc=0.2)
+    s_grid, integral = np.asarray(hot.separation), np.asarray(hot.overlap_integral)
+    rho_model = np.gradient(integral, s_grid)
+    w = sizes.sample_np(np.random.default_rng(4), 400_000)
+    for s in (2.0, 6.0, 12.0, 20.0, 30.0):
+        ref = np.mean(w**2 * square_overlap_fraction(s / w)) / np.mean(w**2)
+        number_weighted = np.mean(square_overlap_fraction(s / w))
+        got = float(np.interp(s, s_grid, rho_model))
+        assert abs(got - ref) < 3e-3, (s, got, ref)
+        if s >= 6.0:
+            assert abs(number_weighted - ref) > 5 * 3e-3  # the check tells the two weightings apart
+
+
 def test_limits():
     wi, wo = _unit([0.47, 0.0, 0.88]), _unit([-0.2, 0.1, 0.97])
     ai, ao = 1.1, 0.9
@@ -67,6 +85,11 @@ def test_single_scatter_without_correlation_is_the_independent_model():
     np.testing.assert_allclose(b, a, rtol=1e-3)
     c = np.asarray(microfacet_reflectance_factor(geo, tilt, platelet=brdf, hot_spot=HotSpot.for_layer((8.0, 16.0, 30.0))))
     assert np.all(c > 1.5 * a)  # the sample's platelets: 1.6-1.9x brighter single scattering
+
+
+def test_hot_spot_needs_exit_occlusion():
+    with pytest.raises(ValueError, match="exit_occlusion"):
+        microfacet_reflectance_factor(ma98_geometry(45.0), GammaTilt(2.29, 2.18), exit_occlusion=False, hot_spot=HotSpot.for_layer(None))
 
 
 @pytest.mark.parametrize("kwargs, word", [({"pvc": 0.0}, "pvc"), ({"pvc": 1.2}, "pvc"), ({"thickness": -1.0}, "thickness")])

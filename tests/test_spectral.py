@@ -11,13 +11,19 @@ from paintjax._tracer import TraceResult
 
 
 def test_node_weights_integrate_the_piecewise_linear_spectrum():
+    """XYZ of node values = colour-science's integration of their piecewise-linear spectrum (constant beyond the ends)."""
+    import colour
+
     rng = np.random.default_rng(3)
     omega = spectral_node_weights(SPECTRAL_NODES_NM)
-    wl, W = pj.spectral_weights()
+    shape = colour.SpectralShape(380, 780, 5)
+    cmfs = colour.MSDS_CMFS["CIE 1964 10 Degree Standard Observer"].copy().align(shape)
+    ill = colour.SDS_ILLUMINANTS["D65"].copy().align(shape)
     for _ in range(3):
         values = rng.uniform(0.2, 1.6, len(SPECTRAL_NODES_NM))
-        on_grid = np.interp(wl, SPECTRAL_NODES_NM, values)  # constant beyond the end nodes
-        np.testing.assert_allclose(omega @ values, np.asarray(pj.spectral_to_xyz(on_grid, W)), rtol=1e-12)
+        on_grid = np.interp(shape.wavelengths, SPECTRAL_NODES_NM, values)
+        ref = colour.sd_to_XYZ(colour.SpectralDistribution(dict(zip(shape.wavelengths, on_grid))), cmfs, ill, method="Integration")
+        np.testing.assert_allclose(omega @ values, ref, rtol=1e-6)
     assert omega[1].sum() == pytest.approx(100.0, abs=1e-10)  # a perfect reflector
 
 
@@ -50,10 +56,8 @@ def test_combination():
     np.testing.assert_allclose(res.reflectance_factor_se, 0.01, rtol=1e-12)  # full correlation: the bound is attained
     np.testing.assert_allclose(res.L_star, pj.lightness_np(100 * flat[0].reflectance_factor), atol=1e-9)
     np.testing.assert_allclose(spectrum["Lab"][:, 1:], 0.0, atol=1e-9)  # a grey spectrum is neutral
-    # batch means of L*: the delta method on the batches' own spread; a*, b* cancel exactly for a grey
-    dL = np.asarray(pj.lightness_np(100 * batches)) - np.asarray(pj.lightness_np(100 * batches.mean(0)))
-    np.testing.assert_allclose(spectrum["Lab_se"][:, 0], dL.std(0, ddof=1) / np.sqrt(32), rtol=0.02)
-    np.testing.assert_allclose(spectrum["Lab_se"][:, 1:], 0.0, atol=1e-9)
+    np.testing.assert_allclose(spectrum["Lab_se"][:, 0], res.L_star_se, rtol=1e-12)  # one L* SE: the bound
+    np.testing.assert_allclose(spectrum["Lab_se"][:, 1:], 0.0, atol=1e-9)  # a*, b* of identical grey batches cancel
     assert res.rays == 100 * K and sum(res.energy.values()) == pytest.approx(1.0)
     blue = [_result([1.0 - 0.05 * k] * 5, [0.01] * 5, None) for k in range(K)]  # reflectance falling toward red
     assert np.all(combine_spectral(blue, SPECTRAL_NODES_NM)[1]["Lab"][:, 2] < 0)  # b* < 0: bluish
@@ -68,14 +72,22 @@ def test_bad_nodes():
         spectral_node_weights([300, 500])
 
 
-def test_simulate_spectral_with_grey_platelets_is_the_single_wavelength_result(capsys):
+def test_simulate_spectral_with_grey_platelets_is_the_single_wavelength_result(capsys, monkeypatch):
     """Wavelength-independent platelets (constant-reflectance mirrors): every node run is the same
     run (same array, same seed), so the spectral Y equals the one-wavelength R and a*, b* vanish
     (through the CLI: `paintjax simulate --spectral --json`)."""
     import json
 
+    import paintjax._commands.simulate as sim
     from paintjax._cli import main
 
+    asked, original = [], sim.platelet_brdf
+
+    def recording(*a, **kw):  # the node wavelengths must reach the platelet BRDF
+        asked.append(kw.get("wavelength_um"))
+        return original(*a, **kw)
+
+    monkeypatch.setattr(sim, "platelet_brdf", recording)
     args = ["simulate", "--brdf", "mirror", "--reflectance", "0.9", "--rays", "8192", "--seed", "1", "--json"]
     assert main(args) == 0
     mono = json.loads(capsys.readouterr().out)
@@ -86,6 +98,20 @@ def test_simulate_spectral_with_grey_platelets_is_the_single_wavelength_result(c
     np.testing.assert_allclose(np.asarray(spec["Lab"])[:, 1:], 0.0, atol=1e-7)
     assert spec["rays"] == len(SPECTRAL_NODES_NM) * mono["rays"] and spec["wavelengths_nm"] == list(SPECTRAL_NODES_NM)
     assert "Lab" not in mono and np.asarray(spec["spectral_reflectance_factor"]).shape == (len(SPECTRAL_NODES_NM), 5)
+    assert asked == [None] + [w / 1000 for w in SPECTRAL_NODES_NM]
+
+
+def test_platelet_brdfs_follow_the_wavelength():
+    """`platelet_brdf(..., wavelength_um=λ)` changes the optics (aluminium index, kσ)."""
+    import jax.numpy as jnp
+
+    from paintjax._commands.simulate import platelet_brdf
+
+    wi, wo = jnp.array([0.3, 0.0, 0.954]), jnp.array([-0.25, 0.1, 0.963])
+    for kind in ("mirror", "kirchhoff"):
+        a, b = (platelet_brdf(kind, sigma=0.051, tau=0.64, n=1.5, wavelength_um=w) for w in (0.4, 0.7))
+        fa, fb = (float(x.albedo(jnp.asarray(0.9))) if kind == "mirror" else float(x.evaluate(wi, wo)) for x in (a, b))
+        assert abs(fa - fb) > 1e-3 * abs(fa), kind
 
 
 def test_lab_standard_error_matches_replicates():
@@ -104,4 +130,5 @@ def test_lab_standard_error_matches_replicates():
     reps = [replicate() for _ in range(400)]
     spread = np.std([r["Lab"] for r in reps], axis=0, ddof=1)
     reported = np.mean([r["Lab_se"] for r in reps], axis=0)
-    np.testing.assert_allclose(reported, spread, rtol=0.15)  # 400 replicates: ≈ 4 % sampling error of the spread
+    np.testing.assert_allclose(reported[:, 1:], spread[:, 1:], rtol=0.15)  # 400 replicates: ≈ 4 % sampling error of the spread
+    assert np.all(reported[:, 0] > 0.9 * spread[:, 0])  # L*: the bound (here ≈ √K too large: independent runs)
