@@ -145,7 +145,7 @@ def simulate(
 
     `spectral`: trace at the `SPECTRAL_NODES_NM` wavelengths (platelet BRDF at each, same array and
     seed) and combine them under D65 and the CIE 1964 10° observer (`_spectral`); the result then
-    also holds "wavelengths_nm", "spectral_reflectance_factor", "XYZ" and "Lab". Otherwise one
+    also holds "wavelengths_nm", "spectral_reflectance_factor", "XYZ", "Lab" and "Lab_se". Otherwise one
     wavelength (the BRDF's default). `progress` prints a line per wavelength.
     """
     from .._grid import build_grid
