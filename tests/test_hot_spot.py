@@ -112,3 +112,12 @@ def test_analytic_forward_takes_the_hot_spot():
     assert hot.fingerprint() != plain.fingerprint()
     with pytest.raises(ValueError, match="hot_spot"):
         pj.AnalyticForward(hot_spot="yes")
+
+
+def test_registered_analytic_hot_spot_forward():
+    from paintjax._forward import make_forward
+
+    theta = np.array([[2.29, 2.18, 0.051, 0.64, 0.0]])
+    hot, plain = make_forward("analytic-hot-spot"), make_forward("analytic")
+    assert hot.hot_spot is not None and plain.hot_spot is None
+    assert np.all(np.asarray(hot(theta))[0, :3] > np.asarray(plain(theta))[0, :3] + 5.0)  # brighter by the hot spot
