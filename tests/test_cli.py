@@ -29,6 +29,18 @@ def test_microfacet_json_round_trip(capsys):
     assert out["flop_index"] == pytest.approx(float(pj.flop_index(L[0], L[2], L[4])))
 
 
+def test_microfacet_without_exit_occlusion(capsys):
+    """`--no-exit-occlusion` (no exit attenuation at all) works with the hot-spot default and is brighter."""
+    assert main(["microfacet", "--sample", "silver1", "--json"]) == 0
+    hot = json.loads(capsys.readouterr().out)
+    assert main(["microfacet", "--sample", "silver1", "--no-exit-occlusion", "--json"]) == 0
+    clear = json.loads(capsys.readouterr().out)
+    s = pj.load_sample("silver1")
+    expected = pj.microfacet_reflectance_factor(pj.ma98_geometry(), pj.GammaTilt(s.tilt_shape.value, s.tilt_scale.value), exit_occlusion=False)
+    np.testing.assert_allclose(clear["reflectance_factor"], np.asarray(expected), rtol=1e-12)
+    assert np.all(np.asarray(clear["reflectance_factor"])[:3] > np.asarray(hot["reflectance_factor"])[:3])
+
+
 def test_microfacet_overrides_change_the_answer(capsys):
     main(["microfacet", "--sample", "silver1", "--json"])
     base = json.loads(capsys.readouterr().out)

@@ -39,7 +39,7 @@ def compute(sample: str = "silver1", shape=None, scale=None, reflectance=None, n
     geometry = ma98_geometry(45.0)
     platelet = MirrorBRDF(n_binder=n, reflectance=reflectance)
     R = microfacet_reflectance_factor(geometry, tilt, n=n, platelet=platelet, exit_occlusion=exit_occlusion,
-                                      hot_spot=HotSpot.for_sample(s) if hot_spot else None)
+                                      hot_spot=HotSpot.for_sample(s) if hot_spot and exit_occlusion else None)
     L = reflectance_factor_to_lightness(R)
     return {
         "sample": s.name,
