@@ -109,21 +109,16 @@ class HotSpot(eqx.Module):
 
         Gauss–Laguerre in u scaled by the slowest possible decay α_i + α_o − √(α_i α_o).
         """
-        alpha_i, alpha_o = jnp.asarray(alpha_i), jnp.asarray(alpha_o)
         mu_i, mu_o = wi[..., 2], wo[..., 2]
         d = wi[..., :2] / mu_i[..., None] - wo[..., :2] / mu_o[..., None]
         d2 = jnp.sum(d**2, axis=-1)
-        tiny = d2 < 1e-24
-        length = jnp.where(tiny, 0.0, self.mean_free_depth * jnp.sqrt(jnp.where(tiny, 1.0, d2)))  # lateral separation per unit u [µm]
-        root = jnp.sqrt(alpha_i * alpha_o)
-        rate = alpha_i + alpha_o - root
+        alpha_i, alpha_o, d2 = jnp.broadcast_arrays(jnp.asarray(alpha_i), jnp.asarray(alpha_o), d2)
+        coincide = self.mean_free_depth**2 * d2 < 1e-18  # the paths part by < 1e-9 µm per unit u (retro)
+        length = self.mean_free_depth * jnp.sqrt(jnp.where(coincide, 1.0, d2))[..., None]  # lateral separation per unit u [µm]
+        root, total = jnp.sqrt(alpha_i * alpha_o), alpha_i + alpha_o
+        rate = total - root
         x, w = np.polynomial.laguerre.laggauss(_DEPTH_NODES)
-        small = length < 1e-9
-        shape = jnp.broadcast_shapes(small.shape, rate.shape)
-        rate, root, total, small = (jnp.broadcast_to(a, shape) for a in (rate, root, alpha_i + alpha_o, small))
-        length = jnp.broadcast_to(length, shape)
         u = jnp.asarray(x) / rate[..., None]
-        safe = jnp.where(small, 1.0, length)[..., None]
-        correlated = jnp.where(small[..., None], u, jnp.interp(u * safe, self.separation, self.overlap_integral) / safe)
+        correlated = jnp.where(coincide[..., None], u, jnp.interp(u * length, self.separation, self.overlap_integral) / length)
         exponent = -u * total[..., None] + root[..., None] * correlated + jnp.asarray(x)
         return jnp.sum(jnp.asarray(w) * jnp.exp(exponent), axis=-1) / rate

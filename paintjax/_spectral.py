@@ -26,6 +26,8 @@ from ._tracer import TraceResult, lightness_with_se
 SPECTRAL_NODES_NM = (400, 450, 500, 550, 600, 650, 700)
 
 _DELTA = 6.0 / 29.0
+#: L*a*b* = _LAB @ f(XYZ / white) + (−16, 0, 0), f the CIE 1976 companding function.
+_LAB = np.array([[0.0, 116.0, 0.0], [500.0, -500.0, 0.0], [0.0, 200.0, -200.0]])
 
 
 def spectral_node_weights(nodes_nm) -> np.ndarray:
@@ -42,7 +44,7 @@ def lab_from_xyz(xyz, white) -> np.ndarray:
     """CIE 1976 L*a*b* of tristimulus values (..., 3) relative to the white (3,) (unclipped above L* 100)."""
     t = np.asarray(xyz, dtype=float) / np.asarray(white, dtype=float)
     f = np.where(t > _DELTA**3, np.cbrt(t), t / (3 * _DELTA**2) + 4.0 / 29.0)
-    return np.stack([116.0 * f[..., 1] - 16.0, 500.0 * (f[..., 0] - f[..., 1]), 200.0 * (f[..., 1] - f[..., 2])], axis=-1)
+    return f @ _LAB.T + np.array([-16.0, 0.0, 0.0])
 
 
 def combine_spectral(results: list[TraceResult], nodes_nm) -> tuple[TraceResult, dict]:
@@ -85,10 +87,7 @@ def combine_spectral(results: list[TraceResult], nodes_nm) -> tuple[TraceResult,
     t = xyz / white
     tt = np.maximum(t, 1e-300)
     df = np.where(t > _DELTA**3, np.cbrt(tt) / (3.0 * tt), 1.0 / (3 * _DELTA**2)) / white  # (m, 3): df(X/Xn)/dX …
-    zero = np.zeros_like(df[:, 0])
-    jac = np.stack([np.stack([zero, 116 * df[:, 1], zero], -1),
-                    np.stack([500 * df[:, 0], -500 * df[:, 1], zero], -1),
-                    np.stack([zero, 200 * df[:, 1], -200 * df[:, 2]], -1)], axis=1)  # (m, Lab, XYZ)
+    jac = _LAB[None] * df[:, None, :]  # (m, Lab, XYZ)
     D = np.einsum("mcx,xk->mck", jac, omega)
     B = np.stack([np.asarray(r.batch_reflectance_factor) for r in results])  # (K, batches, m)
     e = np.einsum("mck,kbm->bmc", D, B - B.mean(axis=1, keepdims=True))
