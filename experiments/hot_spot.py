@@ -18,7 +18,6 @@ Run: python experiments/hot_spot.py [--rays 120000] [--seed 5]
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -29,15 +28,13 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from paintjax import HotSpot, build_grid, fresnel_dielectric, ma98_geometry, trace  # noqa: E402
+from paintjax import HotSpot, boolean_platelet_array, build_grid, fresnel_dielectric, ma98_geometry, trace  # noqa: E402
 from paintjax._beckmann import BeckmannBRDF  # noqa: E402
 from paintjax._cache import enable_compilation_cache  # noqa: E402
 from paintjax._instrument import refract_into_coat  # noqa: E402
 from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
 from paintjax._tracer import TracerOptions  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from _tracer_scenes import poisson_array  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "hot_spot"
 N, THICKNESS, MEAN_FREE_DEPTH, FILM = 1.5, 0.02, 5.0, 60.0
@@ -48,8 +45,8 @@ DENSE = tuple(np.arange(-30.0, 125.01, 0.5))
 
 def run_width(w: float, rays: int, seed: int) -> dict:
     tile = 24.0 * w
-    array = poisson_array(seed, int(round(tile * tile * FILM / (MEAN_FREE_DEPTH * w * w))), tile=(tile, tile), h_b=FILM,
-                          width=w, thickness=THICKNESS, margin=THICKNESS)
+    array = boolean_platelet_array(seed, int(round(tile * tile * FILM / (MEAN_FREE_DEPTH * w * w))), tile=(tile, tile), basecoat_thickness=FILM,
+                                   width=w, thickness=THICKNESS, margin=THICKNESS)
     geometry = ma98_geometry(45.0, ASPECULAR)
     brdf = BeckmannBRDF(0.1, 0.6, n_medium=N)
     t0 = time.perf_counter()

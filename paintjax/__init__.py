@@ -46,6 +46,7 @@ from ._microstructure import (
     GenerationLog,
     PlateletArray,
     array_statistics,
+    boolean_platelet_array,
     cross_section,
     generate_platelet_array,
     overlapping_pairs,

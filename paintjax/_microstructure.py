@@ -383,6 +383,75 @@ def generate_platelet_array(
     return array, log
 
 
+def boolean_platelet_array(
+    seed: int,
+    count: int,
+    *,
+    tile: tuple[float, float],
+    basecoat_thickness: float,
+    width: float,
+    thickness: float,
+    tilt=None,
+    margin: float | None = None,
+) -> PlateletArray:
+    """Equal square platelets placed independently (overlaps allowed): the Boolean platelet model.
+
+    The scene of the closed-form hot spot (`HotSpot`, exact for horizontal platelets) and of the
+    tracer's validation: centres uniform in the tile and in [margin, h_b − margin], tilt from the
+    gamma law (drawn by rejection of `numpy.random.Generator.gamma` above 90°) or horizontal,
+    azimuth uniform, edge direction uniform about the normal. Mean free depth for horizontal
+    platelets: Lx·Ly·h_b / (count·w²).
+
+    Arguments:
+        seed: non-negative integer seed of a NumPy `default_rng` stream (centres, tilts,
+            azimuths, edge directions, in that order).
+        count: number of platelets, integer ≥ 0.
+        tile: (Lx, Ly) [µm], each ≥ √2·width + thickness (no platelet reaches its own image).
+        basecoat_thickness: h_b [µm], > 2·margin.
+        width, thickness: square edge w and thickness t [µm], > 0.
+        tilt: None (horizontal), `GammaTilt` or (shape, scale_deg).
+        margin: distance of the centres from z = 0 and z = h_b [µm], ≥ 0; default w/2, which keeps
+            a box of any tilt whose t ≤ w inside the film.
+
+    Returns:
+        PlateletArray.
+    """
+    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if isinstance(count, bool) or int(count) != count or count < 0:
+        raise ValueError(f"count must be an integer ≥ 0, got {count!r}")
+    count = int(count)
+    w = positive_finite("width", width, "µm")
+    t = positive_finite("thickness", thickness, "µm")
+    h_b = positive_finite("basecoat_thickness", basecoat_thickness, "µm")
+    if np.ndim(tile) != 1 or len(tile) != 2:
+        raise ValueError(f"tile must be (Lx, Ly) [µm], got {tile!r}")
+    L = tuple(positive_finite("tile", v, "µm") for v in tile)
+    if min(L) < math.sqrt(2.0) * w + t:
+        raise ValueError(f"tile {L} µm: each side must be ≥ √2·width + thickness = {math.sqrt(2.0) * w + t:.3g} µm")
+    margin = 0.5 * w if margin is None else float(margin)
+    if not (math.isfinite(margin) and 0 <= margin < 0.5 * h_b):
+        raise ValueError(f"margin must lie in [0, basecoat_thickness/2) = [0, {0.5 * h_b:g}) µm, got {margin!r}")
+    rng = np.random.default_rng(int(seed))
+    c = np.stack([rng.uniform(0, L[0], count), rng.uniform(0, L[1], count), rng.uniform(margin, h_b - margin, count)], -1)
+    if tilt is None:
+        tilt_rad = np.zeros(count)
+    else:
+        law = _as_tilt(tilt)
+        drawn = np.zeros(0)
+        while drawn.size < count:
+            g = rng.gamma(float(law.shape), float(law.scale_deg), size=4 * (count - drawn.size))
+            drawn = np.concatenate([drawn, g[g < MAX_TILT_DEG]])
+        tilt_rad = np.deg2rad(drawn[:count])
+    ph = rng.uniform(0, 2 * np.pi, count)
+    nrm = np.stack([np.sin(tilt_rad) * np.cos(ph), np.sin(tilt_rad) * np.sin(ph), np.cos(tilt_rad)], -1).reshape(count, 3)
+    a = rng.normal(size=(count, 3))
+    u = a - np.sum(a * nrm, -1, keepdims=True) * nrm
+    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    return PlateletArray(centers=jnp.asarray(c.reshape(count, 3)), normals=jnp.asarray(nrm), axes_u=jnp.asarray(u.reshape(count, 3)),
+                         widths=jnp.full((count,), w), thickness=t, tile=L, basecoat_thickness=h_b)
+
+
 def _remove_overlaps(centers, R, e, hz, L, h_b, test, max_attempts, rng, replacements, failed) -> None:
     """Random sequential addition, hardest first; modifies centers/replacements/failed in place.
 

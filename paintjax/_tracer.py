@@ -1003,13 +1003,14 @@ def trace(
         primer_albedo: Lambertian primer albedo ρ in [0, 1].
         waviness_deg: RMS slope angle of a wavy clearcoat surface in [0, 15]° (0: flat; see `_interface`).
         rays: number of rays, over all passes (bidirectional: 1 + m·`reverse_share` rays per
-            forward ray; rounded up to a multiple of the device count).
+            forward ray; each pass rounded up to a multiple of the device count, so a few more
+            than asked: `TraceResult.rays` is the count traced).
         seed: random seed; the result depends on it and on `options`, not on the schedule.
         single_scatter: score only the first scattering event of each path.
         target_se_lstar: if given, keep adding rays until the L* standard error is at most this at
             every detector (or `max_rays` is reached); `rays` is then the first round, and each
             round at most quadruples the rays.
-        max_rays: ceiling for `target_se_lstar` (default 64 × rays).
+        max_rays: ceiling for `target_se_lstar` (default 64 × rays; rounded up per pass like `rays`).
         options: `TracerOptions`.
 
     Returns:

@@ -1,7 +1,8 @@
-"""Hand-made platelet arrays and a brute-force reference grid for the tracer tests.
+"""An empty array, a brute-force reference grid and a Lambertian test BRDF for the tracer tests.
 
-They follow the contracts of ARCHITECTURE.md (PlateletArray fields, UniformGrid fields) so the
-tracer can be validated independently of the generator and grid modules.
+The grid follows the UniformGrid contract of ARCHITECTURE.md so the tracer can be validated
+independently of the grid module; the arrays are Boolean-model arrays (`boolean_platelet_array`),
+not the generator's hard-core arrays.
 """
 
 from __future__ import annotations
@@ -13,16 +14,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from paintjax._brdf import AbstractPlateletBRDF
+from paintjax._microstructure import boolean_platelet_array
 
 
-class HandArray(eqx.Module):
-    centers: jnp.ndarray
-    normals: jnp.ndarray
-    axes_u: jnp.ndarray
-    widths: jnp.ndarray
-    thickness: float = eqx.field(static=True)
-    tile: tuple = eqx.field(static=True)
-    basecoat_thickness: float = eqx.field(static=True)
+def empty_array(tile=(40.0, 40.0), h_b=20.0, thickness=1.0):
+    return boolean_platelet_array(0, 0, tile=tile, basecoat_thickness=h_b, width=1.0, thickness=thickness, margin=0.0)
 
 
 class HandGrid(eqx.Module):
@@ -30,26 +26,6 @@ class HandGrid(eqx.Module):
     overflow: jnp.ndarray
     shape: tuple = eqx.field(static=True)
     cell_size: tuple = eqx.field(static=True)
-
-
-def empty_array(tile=(40.0, 40.0), h_b=20.0, thickness=1.0) -> HandArray:
-    z = np.zeros((0, 3))
-    return HandArray(centers=jnp.asarray(z), normals=jnp.asarray(z), axes_u=jnp.asarray(z), widths=jnp.zeros((0,)), thickness=thickness, tile=tuple(tile), basecoat_thickness=h_b)
-
-
-def poisson_array(seed, count, *, tile, h_b, width, thickness, tilt_deg_sampler=None, margin=None) -> HandArray:
-    """Independent (overlapping allowed) platelets: uniform centres, given tilts, uniform azimuth."""
-    rng = np.random.default_rng(seed)
-    margin = width / 2 if margin is None else margin
-    c = np.stack([rng.uniform(0, tile[0], count), rng.uniform(0, tile[1], count), rng.uniform(margin, h_b - margin, count)], -1)
-    t = np.deg2rad(tilt_deg_sampler(rng, count)) if tilt_deg_sampler else np.zeros(count)
-    ph = rng.uniform(0, 2 * np.pi, count)
-    nrm = np.stack([np.sin(t) * np.cos(ph), np.sin(t) * np.sin(ph), np.cos(t)], -1)
-    a = rng.normal(size=(count, 3))
-    u = a - np.sum(a * nrm, -1, keepdims=True) * nrm
-    u /= np.linalg.norm(u, axis=-1, keepdims=True)
-    w = np.broadcast_to(np.asarray(width, dtype=float), (count,)).copy()
-    return HandArray(centers=jnp.asarray(c), normals=jnp.asarray(nrm), axes_u=jnp.asarray(u), widths=jnp.asarray(w), thickness=float(thickness), tile=tuple(float(x) for x in tile), basecoat_thickness=float(h_b))
 
 
 def reference_grid(array, shape, capacity=None) -> HandGrid:

@@ -63,6 +63,11 @@ def test_readable_table(capsys):
         (["microfacet", "--scale", "0"], "scale"),
         (["microfacet", "--reflectance", "1.5"], "reflectance"),
         (["microfacet", "--n", "0.5"], "refractive index"),
+        (["table1", "--target-se", "0"], "target_se"),
+        (["table1", "--waviness", "40"], "waviness"),
+        (["simulate", "--brdf", "mirror", "--brdf-method", "rotate"], "brdf_method"),
+        (["simulate", "--rays", "0"], "rays"),
+        (["simulate", "--sample", "gold"], "unknown sample"),
     ],
 )
 def test_bad_input_is_a_one_line_error(argv, needle, capsys):

@@ -360,3 +360,38 @@ def test_boxes_helper_matches_array_methods(reference):
     c, R, e = platelet_boxes(array)
     np.testing.assert_allclose(R, np.asarray(array.box_axes()), atol=1e-12)
     np.testing.assert_allclose(e, np.asarray(array.half_extents()), atol=1e-12)
+
+
+def test_boolean_array_statistics():
+    """Independent placement: uniform centres inside the margins, the gamma tilt law, unit frames."""
+    from paintjax import boolean_platelet_array
+
+    a = boolean_platelet_array(3, 4000, tile=(60.0, 40.0), basecoat_thickness=20.0, width=4.0, thickness=0.5, tilt=(2.29, 2.18), margin=2.5)
+    c = np.asarray(a.centers)
+    assert a.count == 4000 and a.tile == (60.0, 40.0) and np.all(np.asarray(a.widths) == 4.0)
+    for col, lo, hi in ((0, 0.0, 60.0), (1, 0.0, 40.0), (2, 2.5, 17.5)):
+        assert lo <= c[:, col].min() and c[:, col].max() <= hi
+        assert stats.kstest(c[:, col], stats.uniform(lo, hi - lo).cdf).pvalue > KS_LEVEL
+    assert tilt_ks(a, GammaTilt(2.29, 2.18))[1] > KS_LEVEL
+    n, u = np.asarray(a.normals), np.asarray(a.axes_u)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.sum(n * u, axis=1), 0.0, atol=1e-12)
+    flat = boolean_platelet_array(3, 50, tile=(60.0, 40.0), basecoat_thickness=20.0, width=4.0, thickness=0.5)
+    np.testing.assert_array_equal(np.asarray(flat.normals), np.tile([0.0, 0.0, 1.0], (50, 1)))
+    again = boolean_platelet_array(3, 50, tile=(60.0, 40.0), basecoat_thickness=20.0, width=4.0, thickness=0.5)
+    np.testing.assert_array_equal(np.asarray(flat.centers), np.asarray(again.centers))
+    assert boolean_platelet_array(0, 0, tile=(10.0, 10.0), basecoat_thickness=5.0, width=1.0, thickness=0.1).count == 0
+
+
+@pytest.mark.parametrize(
+    "override, name",
+    [({"count": -1}, "count"), ({"seed": 1.5}, "seed"), ({"width": 0.0}, "width"), ({"thickness": -1.0}, "thickness"),
+     ({"tile": (5.0, 40.0)}, "tile"), ({"margin": 10.0}, "margin"), ({"basecoat_thickness": float("nan")}, "basecoat_thickness"),
+     ({"tilt": (0.0, 2.0)}, "shape")],
+)
+def test_boolean_array_bad_input_names_the_parameter(override, name):
+    from paintjax import boolean_platelet_array
+
+    kw = dict(seed=0, count=10, tile=(40.0, 40.0), basecoat_thickness=20.0, width=4.0, thickness=0.5) | override
+    with pytest.raises(ValueError, match=name):
+        boolean_platelet_array(**kw)

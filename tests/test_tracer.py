@@ -2,7 +2,7 @@
 
 Every statistical check states its tolerance as a multiple K of the Monte Carlo standard error
 (batch means over 32 lane groups); K = 4 gives a false-alarm rate below 1e-4 per comparison.
-Scenes are small hand-made platelet arrays that follow the ARCHITECTURE.md contracts; all the
+Scenes are small Boolean-model platelet arrays (`boolean_platelet_array`, independent placement); all the
 non-delta tests share one compilation (same padded shapes, same options), the mirror test a second.
 """
 
@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _tracer_scenes import LambertPlateletBRDF, empty_array, poisson_array
+from _tracer_scenes import LambertPlateletBRDF, empty_array
 
 from paintjax import (
     GammaTilt,
     MirrorBRDF,
+    boolean_platelet_array,
     coat_internal_diffuse_reflectance,
     custom_geometry,
     fresnel_dielectric,
@@ -33,14 +34,6 @@ OPT_FWD = TracerOptions(lanes=1024, steps_per_call=16, batches=32, reverse_share
 SILVER1_TILT = (2.29, 2.18)
 
 
-def gamma_sampler(shape, scale):
-    def draw(rng, n):
-        t = rng.gamma(shape, scale, size=4 * n)
-        return t[t < 90.0][:n]
-
-    return draw
-
-
 @pytest.fixture(scope="module")
 def empty_scene():
     arr = empty_array(tile=(40.0, 40.0), h_b=20.0, thickness=0.2)
@@ -50,8 +43,8 @@ def empty_scene():
 @pytest.fixture(scope="module")
 def lambert_scene():
     """400 platelets (w = 4, t = 0.2 µm) with Silver #1 tilts in a 40 × 40 × 20 µm tile."""
-    arr = poisson_array(1, 400, tile=(40.0, 40.0), h_b=20.0, width=4.0, thickness=0.2,
-                        tilt_deg_sampler=gamma_sampler(*SILVER1_TILT), margin=2.2)
+    arr = boolean_platelet_array(1, 400, tile=(40.0, 40.0), basecoat_thickness=20.0, width=4.0, thickness=0.2,
+                                 tilt=SILVER1_TILT, margin=2.2)
     return arr, build_grid(arr, 5.0, capacity=24)
 
 
@@ -103,8 +96,8 @@ def thin_mirror_scene():
     w, t, ell = 1.0, 0.02, 50.0
     h_b, L = 230.0, 40.0
     count = int(round(L * L * h_b / (ell * w * w)))
-    arr = poisson_array(2, count, tile=(L, L), h_b=h_b, width=w, thickness=t,
-                        tilt_deg_sampler=gamma_sampler(*SILVER1_TILT), margin=0.6)
+    arr = boolean_platelet_array(2, count, tile=(L, L), basecoat_thickness=h_b, width=w, thickness=t,
+                                 tilt=SILVER1_TILT, margin=0.6)
     return arr, build_grid(arr, 4.0)
 
 
@@ -188,7 +181,7 @@ def test_single_scatter_wide_platelets_hot_spot():
     from paintjax._instrument import refract_into_coat
 
     w, t, ell, h_b, L = 16.0, 0.02, 5.0, 60.0, 384.0
-    arr = poisson_array(4, int(round(L * L * h_b / (ell * w * w))), tile=(L, L), h_b=h_b, width=w, thickness=t, margin=t)
+    arr = boolean_platelet_array(4, int(round(L * L * h_b / (ell * w * w))), tile=(L, L), basecoat_thickness=h_b, width=w, thickness=t, margin=t)
     geo = ma98_geometry(45.0)
     brdf = BeckmannBRDF(0.1, 0.6, n_medium=N_COAT)
     res = trace(arr, geo, brdf, grid=build_grid(arr, 4.0), n=N_COAT, primer_albedo=0.0, rays=120_000, seed=5,

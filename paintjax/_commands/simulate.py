@@ -12,6 +12,7 @@ from ._common import add_json_argument, print_json
 from .._cache import enable_compilation_cache
 
 BRDFS = ("wave", "mirror", "kirchhoff")
+BRDF_METHODS = ("abel", "rotate")
 #: Primer albedo used when none is given: a mid-grey automotive primer (assumption; the basecoat
 #: hides it, so it moves L* by well under one unit for the reference samples).
 DEFAULT_PRIMER_ALBEDO = 0.3
@@ -37,6 +38,9 @@ def register(sub) -> None:
     p.add_argument("--thickness", type=float, help="basecoat thickness h_b [µm]; default: the sample's (20)")
     p.add_argument("--brdf", choices=BRDFS, default="wave",
                    help="platelet BRDF: wave (hybrid, wave-based table; default), mirror (smooth Al), kirchhoff (analytic Beckmann)")
+    p.add_argument("--brdf-method", choices=BRDF_METHODS, default="abel",
+                   help="wave table's 2-D → 3-D step: abel (inverse Abel of the shift-invariant lobe; default) or rotate "
+                   "(the original study's rotation of the in-plane lobe about the specular direction)")
     p.add_argument("--reflectance", type=float, help="constant platelet reflectance in [0, 1] (mirror only); default: Fresnel of Al")
     p.add_argument("--primer-albedo", type=float, default=DEFAULT_PRIMER_ALBEDO,
                    help=f"Lambertian primer albedo in [0, 1] (default {DEFAULT_PRIMER_ALBEDO})")
@@ -94,15 +98,21 @@ def sample_array(sample: str, *, seed: int = 0, shape=None, scale=None, pvc=None
     )
 
 
-def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=None, wavelength_um=None):
+def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=None, wavelength_um=None, method: str = "abel"):
     """The platelet BRDF of a `--brdf` choice (the wave table is built or read from the cache).
 
     `wavelength_um` None keeps each BRDF's default wavelength (wave and Kirchhoff 0.5 µm, mirror 0.55 µm).
+    `method`: the wave table's 2-D → 3-D step, "abel" (default) or "rotate" (the original study's
+    axisymmetric rotation of the in-plane lobe); wave only.
     """
     from .._brdf import MirrorBRDF
 
     if kind not in BRDFS:
         raise ValueError(f"brdf must be one of {BRDFS}, got {kind!r}")
+    if method not in BRDF_METHODS:
+        raise ValueError(f"brdf_method must be one of {BRDF_METHODS}, got {method!r}")
+    if method != "abel" and kind != "wave":
+        raise ValueError("brdf_method applies to --brdf wave only (the wave table's 2-D → 3-D step)")
     wl = {} if wavelength_um is None else {"wavelength_um": float(wavelength_um)}
     if kind == "mirror":
         return MirrorBRDF(n_binder=n, reflectance=reflectance, **wl)
@@ -116,7 +126,7 @@ def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=
         from .._brdf_table import platelet_brdf_table
     except ImportError as err:  # pragma: no cover - depends on the BRDF issue
         raise ValueError(f"brdf 'wave' is unavailable: {err}") from None
-    return platelet_brdf_table(sigma, tau, n_medium=n, **wl)
+    return platelet_brdf_table(sigma, tau, n_medium=n, method=method, **wl)
 
 
 def simulate(
@@ -129,6 +139,7 @@ def simulate(
     pvc=None,
     thickness=None,
     brdf: str = "wave",
+    brdf_method: str = "abel",
     reflectance=None,
     primer_albedo: float = DEFAULT_PRIMER_ALBEDO,
     waviness: float = 0.0,
@@ -163,7 +174,8 @@ def simulate(
     sigma = s.sigma.value if sigma is None else sigma
     tau = s.tau.value if tau is None else tau
     wavelengths_um = [w / 1000.0 for w in SPECTRAL_NODES_NM] if spectral else [None]
-    platelets = [platelet_brdf(brdf, sigma=sigma, tau=tau, n=n, reflectance=reflectance, wavelength_um=w) for w in wavelengths_um]
+    platelets = [platelet_brdf(brdf, sigma=sigma, tau=tau, n=n, reflectance=reflectance, wavelength_um=w, method=brdf_method)
+                 for w in wavelengths_um]
     array = sample_array(s.name, seed=seed, shape=shape, scale=scale, pvc=pvc, thickness=thickness)
     grid = build_grid(array)
     aperture = MIRROR_APERTURE_DEG if platelets[0].is_delta else 0.0
@@ -186,6 +198,7 @@ def simulate(
     out["tracing_seconds"] = res.seconds
     out["sample"] = s.name
     out["brdf"] = brdf
+    out["brdf_method"] = brdf_method
     out["aperture_deg"] = aperture
     out["waviness_deg"] = float(waviness)
     out["spectral"] = bool(spectral)
@@ -206,14 +219,14 @@ def run(args) -> int:
     enable_compilation_cache()
     r = simulate(
         args.sample, shape=args.shape, scale=args.scale, sigma=args.sigma, tau=args.tau, pvc=args.pvc,
-        thickness=args.thickness, brdf=args.brdf, reflectance=args.reflectance, primer_albedo=args.primer_albedo,
+        thickness=args.thickness, brdf=args.brdf, brdf_method=args.brdf_method, reflectance=args.reflectance, primer_albedo=args.primer_albedo,
         waviness=args.waviness, rays=args.rays, seed=args.seed, single_scatter=args.single_scatter, spectral=args.spectral,
         progress=args.spectral and not args.json,
     )
     if args.json:
         print_json({k: r[k] for k in _JSON_KEYS + (_SPECTRAL_KEYS if args.spectral else ())})
         return 0
-    print(f"Ray tracer, {r['sample']}: {r['brdf']} platelets, {r['platelets']} in a {r['tile_um'][0]:.0f} × {r['tile_um'][1]:.0f} µm tile"
+    print(f"Ray tracer, {r['sample']}: {r['brdf']}{' (in-plane lobe rotated)' if r['brdf_method'] == 'rotate' else ''} platelets, {r['platelets']} in a {r['tile_um'][0]:.0f} × {r['tile_um'][1]:.0f} µm tile"
           f"{', detector aperture %.1f°' % r['aperture_deg'] if r['aperture_deg'] else ''}"
           f"{', single scattering' if args.single_scatter else ''}"
           f"{', spectral (D65, CIE 1964 10°; R factor = Y/100)' if args.spectral else ''}")

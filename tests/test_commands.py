@@ -1,0 +1,69 @@
+"""The main job and the tracer's command line: `paintjax table1` and `paintjax simulate`, run as a user would.
+
+Small ray budgets (the numbers are the model's, not checked against fixed values); the checks are
+the JSON contracts of the issue, internal consistency (RMS, flop index, the measured rows, the
+standard-error target, the energy ledger) and the result files.
+"""
+
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from paintjax import flop_index, load_sample
+from paintjax._cli import main
+
+#: The ledger's entries come from float32 geometry (`TracerOptions.float64` False) summed in float64:
+#: each path's shares add to its weight within float32 rounding.
+LEDGER_ROUNDING = 1e-6
+
+
+@pytest.fixture(scope="module")
+def table1_run(tmp_path_factory):
+    import contextlib
+    import io
+
+    out = tmp_path_factory.mktemp("table1")
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = main(["table1", "--json", "--target-se", "3", "--max-rays", "131072", "--mirror-rays", "8192", "--out", str(out)])
+    return rc, json.loads(buf.getvalue()), out
+
+
+def test_table1_json_contract_and_consistency(table1_run):
+    rc, data, out = table1_run
+    assert rc == 0
+    assert set(data) == {"samples"} and set(data["samples"]) == {"silver1", "silver2"}
+    for name, row in data["samples"].items():
+        assert set(row) == {"measured", "hybrid", "hybrid_se", "mirror", "analytic", "rms_hybrid"}
+        s = load_sample(name)
+        np.testing.assert_array_equal(row["measured"], np.asarray(s.L_star))
+        hybrid, se = np.asarray(row["hybrid"]), np.asarray(row["hybrid_se"])
+        for key in ("hybrid", "hybrid_se", "mirror", "analytic"):
+            assert np.shape(row[key]) == (5,) and np.all(np.isfinite(row[key])), key
+        assert np.all(se > 0) and np.all(se <= 3.0)
+        assert row["rms_hybrid"] == pytest.approx(float(np.sqrt(np.mean((hybrid - np.asarray(s.L_star)) ** 2))), rel=1e-12)
+
+
+def test_table1_result_files(table1_run):
+    _, data, out = table1_run
+    saved = json.loads((out / "table1.json").read_text())
+    assert (out / "table1.png").stat().st_size > 10_000
+    assert not list(out.glob("*.tmp*"))
+    for name, row in saved["samples"].items():
+        np.testing.assert_allclose(row["hybrid"], data["samples"][name]["hybrid"], rtol=1e-12)
+        L = np.asarray(row["hybrid"])
+        assert row["flop"]["hybrid"] == pytest.approx(float(flop_index(L[0], L[2], L[4])), rel=1e-12)
+        assert sum(row["energy_hybrid"].values()) == pytest.approx(1.0, abs=LEDGER_ROUNDING)
+        assert row["rays"]["mirror"] == 8192 and row["rays"]["hybrid"] <= 131072 + 8 * jax.local_device_count()  # passes round up
+
+
+def test_simulate_json_contract(capsys):
+    assert main(["simulate", "--sample", "silver2", "--brdf", "kirchhoff", "--rays", "16384", "--seed", "3", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)
+    assert set(r) == {"aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds"}
+    assert r["aspecular_deg"] == [15.0, 25.0, 45.0, 75.0, 110.0]
+    assert 16384 <= r["rays"] <= 16384 + 8 * jax.local_device_count()  # each pass rounds up
+    assert np.all(np.diff(r["L_star"])[:3] < 0)  # lightness falls away from the specular direction (15° … 75°)
+    assert sum(r["energy"].values()) == pytest.approx(1.0, abs=LEDGER_ROUNDING)
