@@ -13,6 +13,8 @@ count so every variant sees the same random numbers) under one change at a time,
 * `kirchhoff BRDF`: the analytic isotropic 3-D Kirchhoff (Beckmann) platelet BRDF instead of the
   wave-based table (same σ, τ);
 * `single scatter, kirchhoff`: both at once, the tracer's counterpart of the analytic model below.
+* `lobe rotated`: the wave table's 3-D lobe made by rotating the in-plane lobe about the specular
+  direction (the original study's axisymmetric assumption) instead of the inverse Abel transform.
 
 Beside the tracer rows, the analytic single-scatter model (`_microfacet`, no tracing) with the same
 Kirchhoff platelet BRDF: entry and exit paths attenuated independently (exact for platelets much
@@ -58,6 +60,7 @@ VARIANTS = {
     "primer 0.6": {"primer_albedo": 0.6},
     "kirchhoff BRDF": {"brdf": "kirchhoff"},
     "single scatter, kirchhoff": {"single_scatter": True, "brdf": "kirchhoff"},
+    "lobe rotated": {"brdf_method": "rotate"},
 }
 
 
@@ -71,7 +74,7 @@ def plot(result: dict, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7, 4.5))
     ax.errorbar(gamma, result["measured"], yerr=0.3, fmt="ko", label="measured", zorder=5)
     for k, (name, row) in enumerate(result["variants"].items()):
-        ax.errorbar(gamma + 0.6 * (k - 3), row["L_star"], yerr=row["L_star_se"], fmt="-" if name == "baseline" else "--",
+        ax.errorbar(gamma + 0.6 * (k - (len(result["variants"]) - 1) / 2), row["L_star"], yerr=row["L_star_se"], fmt="-" if name == "baseline" else "--",
                     marker="s", ms=3, label=f"{name} (RMS {row['rms']:.1f})")
     for name, row in result["analytic"].items():
         ax.plot(gamma, row["L_star"], ":", marker="v", ms=4, color={"analytic, independent occlusion": "k", "analytic, hot spot": "darkred"}.get(name, "darkcyan"), label=f"{name} (RMS {row['rms']:.1f})")
