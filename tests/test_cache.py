@@ -92,6 +92,19 @@ def test_no_temporary_files_left(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == [cache_path("t", INPUTS, tmp_path).name]
 
 
+def test_atomic_writes_get_the_usual_file_mode(tmp_path):
+    """Written through a private temporary file, results still get mode 0666 & ~umask, like open() gives."""
+    import os
+
+    from paintjax._io import atomic_write_json
+
+    mask = os.umask(0o022)
+    os.umask(mask)  # (reading the umask means setting it)
+    path = atomic_write_json(tmp_path / "r.json", {"a": 1})
+    (tmp_path / "plain").write_text("x")
+    assert path.stat().st_mode & 0o777 == (tmp_path / "plain").stat().st_mode & 0o777 == 0o666 & ~mask
+
+
 def test_brdf_table_cache_hit_identical(tmp_path):
     kw = dict(source="kirchhoff", incidence_deg=[0.0, 20.0, 40.0], theta_s_deg=np.linspace(-89.5, 89.5, 181), cache_dir=tmp_path)
     a1, i1 = platelet_table_arrays(0.051, 0.64, **kw)

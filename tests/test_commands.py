@@ -59,9 +59,13 @@ def test_table1_result_files(table1_run):
         assert row["rays"]["mirror"] == 8192 and row["rays"]["hybrid"] <= 131072 + 8 * jax.local_device_count()  # passes round up
 
 
-def test_simulate_json_contract(capsys):
-    assert main(["simulate", "--sample", "silver2", "--brdf", "kirchhoff", "--rays", "16384", "--seed", "3", "--json"]) == 0
+def test_simulate_json_contract_and_result_files(capsys, tmp_path):
+    argv = ["simulate", "--sample", "silver2", "--brdf", "kirchhoff", "--rays", "16384", "--seed", "3", "--json", "--out", str(tmp_path)]
+    assert main(argv) == 0
     r = json.loads(capsys.readouterr().out)
+    saved = json.loads((tmp_path / "simulate.json").read_text())
+    assert saved["L_star"] == r["L_star"] and saved["inputs"]["brdf"] == "kirchhoff" and saved["sample"] == "silver2"
+    assert (tmp_path / "simulate.png").stat().st_size > 10_000
     assert set(r) == {"aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds"}
     assert r["aspecular_deg"] == [15.0, 25.0, 45.0, 75.0, 110.0]
     assert 16384 <= r["rays"] <= 16384 + 8 * jax.local_device_count()  # each pass rounds up

@@ -8,7 +8,7 @@ from importlib import resources
 
 import numpy as np
 
-from ._common import add_json_argument, print_json
+from ._common import add_json_argument, add_output_argument, print_json
 from .._cache import enable_compilation_cache
 
 BRDFS = ("wave", "mirror", "kirchhoff")
@@ -51,6 +51,7 @@ def register(sub) -> None:
     p.add_argument("--spectral", action="store_true",
                    help="trace at 400, 450, …, 700 nm and combine under D65 and the CIE 1964 10° observer, as the instrument "
                    "does (about 7× the time; adds a* and b*); default: one wavelength (0.5 µm for rough platelets)")
+    add_output_argument(p, "results/simulate")
     add_json_argument(p)
     p.set_defaults(func=run)
 
@@ -215,7 +216,31 @@ _JSON_KEYS = ("aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "ene
 _SPECTRAL_KEYS = ("wavelengths_nm", "spectral_reflectance_factor", "Lab", "Lab_se")
 
 
+def _plot(r: dict, folder) -> str:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .._io import atomic_savefig
+
+    fig, ax = plt.subplots(figsize=(5.5, 4.2))
+    gamma = np.asarray(r["aspecular_deg"])
+    ax.errorbar(gamma, r["measured_L_star"], yerr=0.3, fmt="ko", label=f"measured {r['sample']}")
+    ax.errorbar(gamma, r["L_star"], yerr=r["L_star_se"], fmt="s-", color="C0", label=f"tracer, {r['brdf']} platelets ({r['rays']} rays)")
+    ax.set_xlabel("aspecular angle [deg]")
+    ax.set_ylabel("L*")
+    ax.set_title(f"paintjax simulate: {r['sample']}, seed {r['seed']}")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    path = atomic_savefig(fig, f"{folder}/simulate.png")
+    plt.close(fig)
+    return str(path)
+
+
 def run(args) -> int:
+    from .._io import atomic_write_json
+
     enable_compilation_cache()
     r = simulate(
         args.sample, shape=args.shape, scale=args.scale, sigma=args.sigma, tau=args.tau, pvc=args.pvc,
@@ -223,6 +248,11 @@ def run(args) -> int:
         waviness=args.waviness, rays=args.rays, seed=args.seed, single_scatter=args.single_scatter, spectral=args.spectral,
         progress=args.spectral and not args.json,
     )
+    r["seed"] = args.seed
+    r["inputs"] = {k: getattr(args, k) for k in ("shape", "scale", "sigma", "tau", "pvc", "thickness", "brdf", "brdf_method", "reflectance",
+                                                 "primer_albedo", "waviness", "rays", "seed", "single_scatter", "spectral")}
+    atomic_write_json(f"{args.out}/simulate.json", r)
+    png = _plot(r, args.out)
     if args.json:
         print_json({k: r[k] for k in _JSON_KEYS + (_SPECTRAL_KEYS if args.spectral else ())})
         return 0
@@ -238,5 +268,5 @@ def run(args) -> int:
     print(f"flop index: {r['flop_index']:.2f}")
     e = r["energy"]
     print("energy: " + ", ".join(f"{k.replace('_', ' ')} {v:.4f}" for k, v in e.items()) + f" (sum {sum(e.values()):.6f})")
-    print(f"{r['rays']} rays in {r['tracing_seconds']:.1f} s tracing ({r['seconds']:.1f} s in all)")
+    print(f"{r['rays']} rays in {r['tracing_seconds']:.1f} s tracing ({r['seconds']:.1f} s in all). Plot: {png}; data: {args.out}/simulate.json")
     return 0
