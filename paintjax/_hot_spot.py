@@ -62,11 +62,14 @@ class HotSpot(eqx.Module):
         mean_free_depth: ℓ = t / PVC [µm], the mean depth between platelets along the normal.
         separation: grid of lateral separations s [µm] (0 … √2 w_max).
         overlap_integral: ∫_0^s ρ(s') ds' on that grid [µm] (constant beyond it).
+        overlap: ρ(s) on that grid, the integral's slope (cubic Hermite interpolation: exact to
+            O(Δs⁴), so the mean overlap F(s)/s → ρ(0) = 1 as the paths merge).
     """
 
     mean_free_depth: float = eqx.field(static=True)
     separation: Float[Array, " k"]
     overlap_integral: Float[Array, " k"]
+    overlap: Float[Array, " k"]
 
     @classmethod
     def for_layer(cls, sizes: SizeDistribution | tuple | None = None, *, thickness: float = 1.0, pvc: float = 0.2) -> "HotSpot":
@@ -86,7 +89,7 @@ class HotSpot(eqx.Module):
         s = np.linspace(0.0, np.sqrt(2.0) * float(np.max(w)), _SEPARATION_NODES)
         rho = np.sum(w[None, :] ** 2 * square_overlap_fraction(s[:, None] / w[None, :]), axis=1) / np.sum(w**2)
         integral = np.concatenate([[0.0], np.cumsum(0.5 * (rho[1:] + rho[:-1]) * np.diff(s))])
-        return cls(mean_free_depth=t / pvc, separation=jnp.asarray(s), overlap_integral=jnp.asarray(integral))
+        return cls(mean_free_depth=t / pvc, separation=jnp.asarray(s), overlap_integral=jnp.asarray(integral), overlap=jnp.asarray(rho))
 
     @classmethod
     def for_sample(cls, sample) -> "HotSpot":
@@ -119,6 +122,16 @@ class HotSpot(eqx.Module):
         rate = total - root
         x, w = np.polynomial.laguerre.laggauss(_DEPTH_NODES)
         u = jnp.asarray(x) / rate[..., None]
-        correlated = jnp.where(coincide[..., None], u, jnp.interp(u * length, self.separation, self.overlap_integral) / length)
+        correlated = jnp.where(coincide[..., None], u, self._integral(u * length) / length)
         exponent = -u * total[..., None] + root[..., None] * correlated + jnp.asarray(x)
         return jnp.sum(jnp.asarray(w) * jnp.exp(exponent), axis=-1) / rate
+
+    def _integral(self, x):
+        """∫_0^x ρ ds [µm] by cubic Hermite interpolation of the tabulated integral and its slope ρ."""
+        s, F, rho = self.separation, self.overlap_integral, self.overlap
+        xc = jnp.clip(x, s[0], s[-1])
+        k = jnp.clip(jnp.searchsorted(s, xc, side="right") - 1, 0, s.shape[0] - 2)
+        h = s[k + 1] - s[k]
+        t = (xc - s[k]) / h
+        h00, h10, h01, h11 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t, -2 * t**3 + 3 * t**2, t**3 - t**2
+        return h00 * F[k] + h10 * h * rho[k] + h01 * F[k + 1] + h11 * h * rho[k + 1]

@@ -33,7 +33,10 @@ def test_joint_escape_matches_direct_quadrature():
     w, ell = 16.0, 5.0
     hot = HotSpot.for_layer((w * 0.99999, w, w * 1.00001), thickness=0.02, pvc=0.02 / ell)
     wi = _unit([0.47, 0.0, 0.88])
-    for wo in ([-0.33, 0.0, 0.94], [0.0, 0.0, 1.0], [0.3, 0.2, 0.93], [0.6, 0.0, 0.8]):
+    # near the retro direction the paths part by 1e-4 and 1e-3 µm per unit depth, far below the
+    # 0.01 µm table cells: the interpolated overlap integral must still have slope ρ(0) = 1 there
+    near_retro = [np.asarray(wi) / float(wi[2]) + np.array([sep / ell, 0.0, 0.0]) for sep in (1e-4, 1e-3)]
+    for wo in [[-0.33, 0.0, 0.94], [0.0, 0.0, 1.0], [0.3, 0.2, 0.93], [0.6, 0.0, 0.8], *near_retro]:
         wo = _unit(wo)
         d = np.asarray(wi[:2] / wi[2] - wo[:2] / wo[2])
         length = ell * np.linalg.norm(d)

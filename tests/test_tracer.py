@@ -312,3 +312,46 @@ def test_deterministic_and_validated(empty_scene):
         trace(arr, geo, LambertPlateletBRDF(0.5), grid=grid, seed=-1)
     with pytest.raises(ValueError, match=r"waviness_deg .*\[0, 15\]"):
         trace(arr, geo, LambertPlateletBRDF(0.5), grid=grid, waviness_deg=20.0)
+
+
+_TWO_DEVICE_SCRIPT = """
+import json, sys
+import jax
+jax.config.update("jax_enable_x64", True)
+import numpy as np
+sys.path.insert(0, {tests!r})
+from _tracer_scenes import LambertPlateletBRDF, empty_array
+from paintjax import build_grid, ma98_geometry, trace
+from paintjax._tracer import TracerOptions
+arr = empty_array(tile=(40.0, 40.0), h_b=20.0, thickness=0.2)
+opt = TracerOptions(lanes=512, steps_per_call=16, batches=32)
+kw = dict(grid=build_grid(arr, 5.0, capacity=24), n=1.5, primer_albedo=0.8, rays=30_000, seed=3, options=opt)
+r1 = trace(arr, ma98_geometry(45.0), LambertPlateletBRDF(0.5), **kw)
+r2 = trace(arr, ma98_geometry(45.0), LambertPlateletBRDF(0.5), **kw)
+print(json.dumps({{"devices": jax.local_device_count(), "R": r1.reflectance_factor.tolist(), "se": r1.reflectance_factor_se.tolist(),
+                  "same": bool(np.array_equal(r1.reflectance_factor, r2.reflectance_factor)), "ledger": sum(r1.energy.values()),
+                  "rays": r1.rays}}))
+"""
+
+
+def test_rays_spread_over_two_host_devices():
+    """The shard_map path: two (forced) CPU devices give the white-furnace closed form, deterministically."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = os.environ | {"XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    script = _TWO_DEVICE_SCRIPT.format(tests=str(Path(__file__).parent))
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["devices"] == 2 and out["same"] and out["rays"] >= 30_000
+    geo = ma98_geometry(45.0)
+    rho, r_i = 0.8, coat_internal_diffuse_reflectance(N_COAT)
+    expected = _fresnel_T(45.0) * _fresnel_T(np.asarray(geo.detector_polar_deg)) * rho / (N_COAT**2 * (1 - rho * r_i))
+    dev = (np.asarray(out["R"]) - expected) / np.asarray(out["se"])
+    assert np.all(np.abs(dev) < K), dev
+    assert np.all(np.asarray(out["se"]) < 0.01 * expected)
+    assert abs(out["ledger"] - 1.0) < 1e-5
