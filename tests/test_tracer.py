@@ -272,13 +272,14 @@ def test_multiple_importance_sampling(lambert_scene):
     kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, rays=60_000, seed=12)
     mis = trace(arr, geo, brdf, options=OPT, **kw)
     nee = trace(arr, geo, brdf, options=OPT_NEE, **kw)
-    hist = mis.histogram_reflectance_factor
-    for name, other, other_se in (("NEE", nee.reflectance_factor, nee.reflectance_factor_se), ("hist", hist, mis.histogram_se)):
-        z = (mis.reflectance_factor - other) / np.hypot(mis.reflectance_factor_se, other_se)
-        print(f"(MIS − {name})/SE", np.round(z, 2))
+    # all three come from the same paths (one seed): compare batch by batch, the paired difference's SE
+    for name, other in (("NEE", nee.batch_reflectance_factor), ("hist", mis.batch_histogram)):
+        diff = mis.batch_reflectance_factor - other
+        z = diff.mean(axis=0) / (diff.std(axis=0, ddof=1) / np.sqrt(diff.shape[0]))
+        print(f"(MIS − {name})/paired SE", np.round(z, 2))
         assert np.all(np.abs(z) < K), name
     ratio = (mis.reflectance_factor_se / mis.reflectance_factor) / (nee.reflectance_factor_se / nee.reflectance_factor)
-    print("relative SE, MIS / NEE alone", np.round(ratio, 2))  # measured 0.79 0.65 0.62 0.73 0.99 (seed 12)
+    print("relative SE, MIS / NEE alone", np.round(ratio, 2))  # measured 0.78 0.65 0.63 0.71 0.95 (seed 12)
     assert np.mean(ratio) < 0.9  # MIS off gives exactly 1 (same seed, same numbers)
 
 
@@ -299,9 +300,9 @@ def test_bidirectional_mis(lambert_scene, single):
     arr, grid = lambert_scene
     brdf = BeckmannBRDF(0.1, 0.6, n_medium=N_COAT)
     geo = ma98_geometry(45.0)
-    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, seed=12, single_scatter=single)
-    fwd = trace(arr, geo, brdf, rays=30_000, options=OPT_FWD, **kw)
-    bid = trace(arr, geo, brdf, rays=60_000, options=OPT, **kw)  # 1 + 5 × 0.5 rays per forward ray
+    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, single_scatter=single)
+    fwd = trace(arr, geo, brdf, rays=30_000, seed=13, options=OPT_FWD, **kw)  # own seed: independent of `bid`'s forward pass
+    bid = trace(arr, geo, brdf, rays=60_000, seed=12, options=OPT, **kw)  # 1 + 5 × 0.5 rays per forward ray
     assert 60_000 <= bid.rays < 61_000
     z = (bid.reflectance_factor - fwd.reflectance_factor) / np.hypot(bid.reflectance_factor_se, fwd.reflectance_factor_se)
     print("(bidirectional − forward)/SE", np.round(z, 2), "relative SE", np.round(bid.reflectance_factor_se / bid.reflectance_factor, 4))
@@ -311,10 +312,20 @@ def test_bidirectional_mis(lambert_scene, single):
 
 @pytest.mark.parametrize("waviness", [0.0, 8.0])
 def test_reciprocity(lambert_scene, waviness):
-    """Swapping source and detector leaves the reflectance factor unchanged (non-delta platelets; flat or wavy coat)."""
+    """Swapping source and detector leaves the reflectance factor unchanged (non-delta platelets; flat or wavy coat).
+
+    Under the flat coat the platelets are Beckmann lobes (σ = 0.1, τ = 0.6 µm), unlike a Lambertian
+    platelet sensitive to a platelet frame or an argument order that broke the symmetry of
+    f(ω_i, ω_o); the lobe makes forward next-event estimates spiky, and the reverse pool (OPT, flat
+    coat only) tames them. The wavy coat, whose crossings are what it tests, keeps Lambertian
+    platelets: through it the forward estimates of the lobe have too heavy a tail for a 2 % SE.
+    """
+    from paintjax._beckmann import BeckmannBRDF
+
     arr, grid = lambert_scene
-    brdf = LambertPlateletBRDF(0.9)
-    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, rays=25_000, waviness_deg=waviness, options=OPT_FWD)
+    flat = waviness == 0
+    brdf = BeckmannBRDF(0.1, 0.6, n_medium=N_COAT) if flat else LambertPlateletBRDF(0.9)
+    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, rays=30_000 if flat else 25_000, waviness_deg=waviness, options=OPT if flat else OPT_FWD)
     # A: source (30°, az 180); detectors (60°, az 0) and (45°, az 90) among five
     a = trace(arr, custom_geometry(30.0, [60.0, 45.0, 10.0, 20.0, 70.0], [0.0, 90.0, 0.0, 180.0, 45.0]), brdf, seed=21, **kw)
     b = trace(arr, custom_geometry(60.0, [30.0, 5.0, 15.0, 25.0, 35.0], [180.0] * 5, illumination_azimuth_deg=0.0), brdf, seed=22, **kw)
