@@ -145,7 +145,8 @@ def test_single_scatter_mirror_matches_microfacet_model(thin_mirror_scene, wavin
     exp(−z(A_i/μ_i + A_o/μ_o)/ℓ), whose depth integral gives D = A_i μ_o + A_o μ_i. The closed
     form neglects the correlation of the two paths over one platelet width w near the
     scattering point (hot-spot brightening ~ w/ℓ); the scene makes it small (w = 1 µm,
-    mean free path ℓ = 50 µm, ≈ 1–2 %), which the tolerance adds to K·SE. Side faces absorb
+    mean free path ℓ = 50 µm, ≈ 1–2 %), which the tolerance adds to K·SE on the bright side only
+    (the correlation can only brighten). Side faces absorb
     (`edges="absorb"`, the thin-platelet limit; t/w = 0.02). Delta platelets are scored into a
     finite aperture (8°), averaged identically by the analytic model. The array is large
     (7360 platelets) and the instrument azimuth random per ray, so the realised tilts of one
@@ -169,7 +170,7 @@ def test_single_scatter_mirror_matches_microfacet_model(thin_mirror_scene, wavin
     for j in range(3):  # 15°, 25°, 45°
         R, se = res.reflectance_factor[j], res.reflectance_factor_se[j]
         assert se < (0.03, 0.03, 0.08)[j] * R  # the 45° detector sees the tilt tail (R ≈ 0.05)
-        assert abs(R - model[j]) < K * se + 0.02 * model[j], (j, R, se, model[j])
+        assert -K * se < R - model[j] < K * se + 0.02 * model[j], (j, R, se, model[j])  # the hot spot only brightens
 
 
 def test_single_scatter_rough_matches_microfacet_model(thin_mirror_scene):
@@ -180,7 +181,8 @@ def test_single_scatter_rough_matches_microfacet_model(thin_mirror_scene):
     platelet's own frame, toward each detector's refracted direction. Beckmann platelets with
     σ = 0.1 µm, τ = 0.6 µm (kσ ≈ 1.9, no coherent part) have a lobe as wide as the tilt law, so a
     wrong platelet frame, a missing cosine or a wrong Jacobian moves 45° by far more than the
-    tolerance (K·SE + 2 % hot-spot allowance, as in the mirror test; measured 0.0 / 0.0 / +1.8 %).
+    tolerance (K·SE, plus 2 % on the bright side for the hot spot, as in the mirror test; measured
+    −0.3 / −0.1 / +1.8 %).
     """
     from paintjax._beckmann import BeckmannBRDF
 
@@ -195,7 +197,7 @@ def test_single_scatter_rough_matches_microfacet_model(thin_mirror_scene):
     for j in range(3):
         R, se = res.reflectance_factor[j], res.reflectance_factor_se[j]
         assert se < 0.01 * R
-        assert abs(R - model[j]) < K * se + 0.02 * model[j], (j, R, se, model[j])
+        assert -K * se < R - model[j] < K * se + 0.02 * model[j], (j, R, se, model[j])  # the hot spot only brightens
 
 
 def test_single_scatter_wide_platelets_hot_spot():
