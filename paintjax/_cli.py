@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 #: Sub-command modules under paintjax._commands, in the order `--help` lists them.
@@ -36,6 +37,10 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as err:
         print(f"paintjax {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader went away (`paintjax … | head`): results on disk are complete
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
     return int(result or 0)
 
 

@@ -81,3 +81,13 @@ def test_console_script_runs_as_a_user_would():
     proc = subprocess.run([exe, "microfacet", "--sample", "silver1", "--json"], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert len(json.loads(proc.stdout)["L_star"]) == 5
+
+
+def test_closed_pipe_is_no_traceback():
+    """`paintjax … | head` closes the pipe early: a quiet exit (status 1), no BrokenPipeError traceback."""
+    exe = os.path.join(os.path.dirname(sys.executable), "paintjax")
+    proc = subprocess.Popen([exe, "microfacet", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc.stdout.close()  # before the child (which first imports JAX) writes anything
+    err = proc.stderr.read()
+    assert proc.wait(timeout=300) == 1, err
+    assert "Traceback" not in err and "BrokenPipe" not in err

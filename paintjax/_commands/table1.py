@@ -8,6 +8,7 @@ sample's platelet widths (`_hot_spot`). Nothing is tuned to the measurement.
 
 from __future__ import annotations
 
+import sys
 import time
 
 import numpy as np
@@ -65,8 +66,11 @@ def _hybrid_available() -> tuple[bool, str]:
 
 
 def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, seed: int = 0, max_rays: int = DEFAULT_MAX_RAYS,
-            waviness: float = 0.0, spectral: bool = False) -> dict:
-    """All columns for both samples (plain dict; `None` where a column is unavailable)."""
+            waviness: float = 0.0, spectral: bool = False, progress: bool = False) -> dict:
+    """All columns for both samples (plain dict; `None` where a column is unavailable).
+
+    `progress` prints a line per column to stderr as it finishes (stdout stays the table or JSON).
+    """
     from .._brdf import MirrorBRDF
     from .._hot_spot import HotSpot
     from .._instrument import ma98_geometry
@@ -89,9 +93,14 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
     out = {"samples": {}, "notes": []}
     if not available:
         out["notes"].append(f"hybrid column unavailable: {why}")
+    def report(text):
+        if progress:
+            print(f"[table1] {text}", file=sys.stderr, flush=True)
+
     for name in SAMPLES:
         s = load_sample(name)
         t0 = time.perf_counter()
+        report(f"{name}: hybrid column (wave-based platelet BRDF through the tracer, until SE ≤ {target_se:g} L*) …")
         row = {"measured": np.asarray(s.L_star)}
         hybrid = None
         if available:
@@ -99,6 +108,9 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
                 hybrid = simulate(name, brdf="wave", seed=seed, target_se=target_se, max_rays=max_rays, waviness=waviness, spectral=spectral)
             except (ValueError, ImportError, OSError) as err:
                 out["notes"].append(f"hybrid column unavailable for {name}: {err}")
+        if hybrid is not None:
+            report(f"{name}: hybrid done, {hybrid['rays']} rays, largest SE {float(np.max(hybrid['L_star_se'])):.2f} L*, "
+                   f"{time.perf_counter() - t0:.0f} s; mirror column ({mirror_rays} rays) …")
         mirror = simulate(name, brdf="mirror", seed=seed, rays=mirror_rays, waviness=waviness)
         geo = ma98_geometry(45.0)
         tilt = GammaTilt(s.tilt_shape.value, s.tilt_scale.value)
@@ -160,7 +172,7 @@ def run(args) -> int:
 
     enable_compilation_cache()
     t0 = time.perf_counter()
-    r = compute(args.target_se, args.mirror_rays, args.seed, args.max_rays, waviness=args.waviness, spectral=args.spectral)
+    r = compute(args.target_se, args.mirror_rays, args.seed, args.max_rays, waviness=args.waviness, spectral=args.spectral, progress=True)
     r["seconds"] = time.perf_counter() - t0
     atomic_write_json(f"{args.out}/table1.json", r)
     png = _plot(r, args.out)
