@@ -13,6 +13,10 @@ which for mirror platelets collapses to f_in = R(ω_i·h) p(h) / (4 D), h the ha
 independent exit occlusion holds for platelets much narrower than the mean free path; for wide
 ones the entry and exit paths are correlated (`_hot_spot`: D → μ_i μ_o / G). The
 reflectance factor through a flat coat of index n is R(γ) = π T(θ_i) T(θ_o) f_in / n² (brief §3).
+Platelets of finite thickness (`side_walls` = aspect t·E[w]/E[w²], 0 for thin platelets) add the
+projected area of their black side walls to A: a w × w × t box seen along ω shows
+w²|m·ω| + wt(|u·ω| + |v·ω|), on average over its in-plane rotation w²(|m·ω| + (t/w)(4/π)|m × ω|);
+the side walls only extinguish (the tracer's `edges="absorb"`).
 With exit occlusion the model is reciprocal. The platelet BRDF is pluggable: any
 `AbstractPlateletBRDF` is integrated over the tilt distribution numerically.
 """
@@ -57,15 +61,30 @@ def to_local(w: Float[Array, "... 3"], m: Float[Array, "... 3"]) -> Float[Array,
     return jnp.stack([jnp.sum(w * t1, -1), jnp.sum(w * t2, -1), jnp.sum(w * m, -1)], axis=-1)
 
 
-def _denominator(tilt: GammaTilt, wi, wo, exit_occlusion: bool, hot_spot: HotSpot | None = None):
+def _side_wall_area(tilt: GammaTilt, cos_theta, nodes: int = 64):
+    """(4/π) E_m |m × ω|: mean side-wall projected area per unit aspect t/w, over the tilt law."""
+    x, w = np.polynomial.legendre.leggauss(nodes)
+    t_deg = 0.5 * (x + 1.0) * MAX_TILT_DEG
+    wt = jnp.asarray(0.5 * w * MAX_TILT_DEG) * tilt.pdf_deg(jnp.asarray(t_deg))
+    t = np.deg2rad(t_deg)[:, None]
+    phi = (np.arange(nodes) + 0.5) * (2.0 * np.pi / nodes)
+    ct = jnp.asarray(cos_theta)[..., None, None]
+    st = jnp.sqrt(jnp.clip(1.0 - ct**2, 0.0, 1.0))
+    m_dot_w = np.cos(t) * ct + np.sin(t) * np.cos(phi) * st
+    sine = jnp.mean(jnp.sqrt(jnp.clip(1.0 - m_dot_w**2, 0.0, 1.0)), axis=-1)
+    return (4.0 / jnp.pi) * jnp.sum(wt * sine, axis=-1)
+
+
+def _denominator(tilt: GammaTilt, wi, wo, exit_occlusion: bool, hot_spot: HotSpot | None = None, side_walls: float = 0.0):
     ci, co = wi[..., 2], wo[..., 2]
+    area = (lambda c: tilt.projected_area(c)) if side_walls == 0 else (lambda c: tilt.projected_area(c) + side_walls * _side_wall_area(tilt, c))
     if not exit_occlusion:
         if hot_spot is not None:
             raise ValueError("hot_spot correlates the exit occlusion with the entry: it needs exit_occlusion=True")
-        return tilt.projected_area(ci) * co
+        return area(ci) * co
     if hot_spot is not None:  # correlated paths: μ_i μ_o / G (G = 1/(α_i + α_o) without correlation)
-        return ci * co / hot_spot.joint_escape(wi, wo, tilt.projected_area(ci) / ci, tilt.projected_area(co) / co)
-    return tilt.projected_area(ci) * co + tilt.projected_area(co) * ci
+        return ci * co / hot_spot.joint_escape(wi, wo, area(ci) / ci, area(co) / co)
+    return area(ci) * co + area(co) * ci
 
 
 @eqx.filter_jit
@@ -77,6 +96,7 @@ def single_scatter_brdf(
     *,
     exit_occlusion: bool = True,
     hot_spot: HotSpot | None = None,
+    side_walls: float = 0.0,
     tilt_nodes: int = 256,
     azimuth_nodes: int = 256,
 ) -> Float[Array, "..."]:
@@ -89,10 +109,15 @@ def single_scatter_brdf(
         exit_occlusion: attenuate the exiting ray by the same platelet medium (reciprocal form).
         hot_spot: with `exit_occlusion`, correlate the entry and exit attenuation over the
             platelets' finite width (`HotSpot`); None: independent (platelets ≪ mean free path).
+        side_walls: platelet aspect t·E[w]/E[w²] ≥ 0 whose black side walls add to the extinction
+            (module docstring); 0 (default): thin platelets.
         tilt_nodes, azimuth_nodes: quadrature sizes for non-delta platelet BRDFs (the defaults
             resolve platelet lobes down to ~0.5° wide; a 0.35° lobe needs them).
     """
-    denom = _denominator(tilt, wi, wo, exit_occlusion, hot_spot)
+    side_walls = float(side_walls)
+    if not (side_walls >= 0.0 and np.isfinite(side_walls)):
+        raise ValueError(f"side_walls (platelet aspect t/w) must be a finite number ≥ 0, got {side_walls!r}")
+    denom = _denominator(tilt, wi, wo, exit_occlusion, hot_spot, side_walls)
     if platelet.is_delta:
         h = wi + wo
         h = h / jnp.linalg.norm(h, axis=-1, keepdims=True)
@@ -129,6 +154,7 @@ def microfacet_reflectance_factor(
     platelet: AbstractPlateletBRDF | None = None,
     exit_occlusion: bool = True,
     hot_spot: HotSpot | None = None,
+    side_walls: float = 0.0,
     aperture_nodes: int = 6,
     waviness_deg: float = 0.0,
     waviness_nodes: int = 8,
@@ -145,7 +171,7 @@ def microfacet_reflectance_factor(
         tilt: platelet tilt law.
         n: coat (and binder) refractive index.
         platelet: platelet BRDF (default: aluminium mirror in the binder at 550 nm).
-        exit_occlusion, hot_spot: see `single_scatter_brdf`.
+        exit_occlusion, hot_spot, side_walls: see `single_scatter_brdf`.
         aperture_nodes: radial and azimuthal nodes of each aperture's cone quadrature.
         waviness_deg: RMS slope angle of the clearcoat surface [deg] (0 = flat).
         waviness_nodes: Gauss–Hermite nodes per slope component.
@@ -164,7 +190,8 @@ def microfacet_reflectance_factor(
     facets, facet_w = (jnp.asarray(a) for a in gauss_hermite_facets(waviness_deg, waviness_nodes))
     wi, Ti = _through_coat(wi_air, facets, facet_w, n, slope_sd(waviness_deg))  # (qi·q, 3), (qi·q,)
     wo, To = _through_coat(wo_air, facets, facet_w, n, slope_sd(waviness_deg))  # (m, qo·q, 3), (m, qo·q)
-    f = single_scatter_brdf(wi[None, None, :, :], wo[:, :, None, :], tilt, platelet, exit_occlusion=exit_occlusion, hot_spot=hot_spot)
+    f = single_scatter_brdf(wi[None, None, :, :], wo[:, :, None, :], tilt, platelet, exit_occlusion=exit_occlusion, hot_spot=hot_spot,
+                            side_walls=side_walls)
     R = jnp.pi * Ti[None, None, :] * To[:, :, None] * f / n**2
     return jnp.einsum("moi,o,i->m", R, jnp.repeat(wo_w, facets.shape[0]), jnp.repeat(wi_w, facets.shape[0]))
 

@@ -146,3 +146,33 @@ def test_bad_inputs():
         pj.MirrorBRDF(reflectance=1.2)
     with pytest.raises(ValueError, match="coat refractive index"):
         pj.microfacet_reflectance_factor(pj.ma98_geometry(), pj.GammaTilt(2, 2), n=0.9)
+
+
+def test_side_walls_projected_area():
+    """Black side walls of w × w × t boxes: (4/π) E|m × ω| per unit aspect, against independent quadrature."""
+    from paintjax._microfacet import _side_wall_area
+
+    tilt = pj.GammaTilt(2.29, 2.18)
+    law = stats.gamma(2.29, scale=2.18)
+    norm = law.cdf(90.0)
+    for theta in (0.0, 28.0, 60.0):
+        th = np.deg2rad(theta)
+
+        def mean_sine(t_deg):  # azimuthal mean of |m × ω| for a tilt t
+            t = np.deg2rad(t_deg)
+            return integrate.quad(lambda p: np.sqrt(max(0.0, 1 - (np.cos(t) * np.cos(th) + np.sin(t) * np.sin(th) * np.cos(p)) ** 2)),
+                                  0, np.pi)[0] / np.pi
+
+        ref = (4 / np.pi) * integrate.quad(lambda t: law.pdf(t) * mean_sine(t), 0, 90, limit=200)[0] / norm
+        assert float(_side_wall_area(tilt, np.cos(th))) == pytest.approx(ref, rel=2e-4), theta
+
+
+def test_side_walls_darken_and_validate():
+    geo = pj.ma98_geometry(45.0)
+    tilt = pj.GammaTilt(2.29, 2.18)
+    thin = np.asarray(pj.microfacet_reflectance_factor(geo, tilt))
+    boxes = np.asarray(pj.microfacet_reflectance_factor(geo, tilt, side_walls=0.06))
+    assert np.all(boxes < thin) and np.all(boxes > 0.9 * thin)
+    np.testing.assert_array_equal(np.asarray(pj.microfacet_reflectance_factor(geo, tilt, side_walls=0.0)), thin)
+    with pytest.raises(ValueError, match="side_walls"):
+        pj.microfacet_reflectance_factor(geo, tilt, side_walls=-0.1)
