@@ -5,7 +5,7 @@ Float64 is *not* enabled on import. The CLI, the experiments and the tests enabl
 """
 
 from ._aluminium import RAKIC1995_550NM, aluminium_index, aluminium_permittivity, aluminium_reflectance
-from ._brdf import AbstractPlateletBRDF, MirrorBRDF, reflect
+from ._brdf import AbstractPlateletBRDF, LambertianBRDF, MirrorBRDF, reflect
 from ._beckmann import AbstractGaussianMetalBRDF, AbstractLobeBRDF, BeckmannBRDF
 from ._brdf_table import (
     BRDFTableGrid,

@@ -99,3 +99,41 @@ class MirrorBRDF(AbstractPlateletBRDF):
 
     def albedo(self, cos_i):
         return self.fresnel(cos_i)
+
+
+class LambertianBRDF(AbstractPlateletBRDF):
+    """Diffuse (Lambertian) platelet faces of albedo a: f = a/π, exactly importance sampled.
+
+    A reference BRDF for closed-form checks (white furnace, energy closure), not a model of
+    aluminium. Reciprocal; `sample` returns cosine-distributed directions with weight a.
+
+    Arguments:
+        albedo: a in [0, 1].
+    """
+
+    albedo_value: Float[Array, ""]
+    is_delta: ClassVar[bool] = False
+
+    def __init__(self, albedo):
+        a = float(albedo)
+        if not 0.0 <= a <= 1.0:
+            raise ValueError(f"albedo must lie in [0, 1], got {albedo!r}")
+        self.albedo_value = jnp.asarray(a)
+
+    def evaluate(self, wi, wo):
+        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        return jnp.where(ok, self.albedo_value / jnp.pi, 0.0).astype(wi.dtype)
+
+    def sample(self, key, wi):
+        u = jax.random.uniform(key, wi.shape[:-1] + (2,), dtype=wi.dtype)
+        r = jnp.sqrt(u[..., 0])
+        ph = 2 * jnp.pi * u[..., 1]
+        wo = jnp.stack([r * jnp.cos(ph), r * jnp.sin(ph), jnp.sqrt(1 - u[..., 0])], -1)
+        return wo, jnp.broadcast_to(self.albedo_value, wi.shape[:-1]).astype(wi.dtype)
+
+    def pdf(self, wi, wo):
+        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        return jnp.where(ok, wo[..., 2] / jnp.pi, 0.0).astype(wi.dtype)
+
+    def albedo(self, cos_i):
+        return jnp.broadcast_to(self.albedo_value, jnp.shape(cos_i))

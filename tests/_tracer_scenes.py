@@ -1,4 +1,4 @@
-"""An empty array, a brute-force reference grid and a Lambertian test BRDF for the tracer tests.
+"""An empty array and a brute-force reference grid for the tracer tests (and the Lambertian BRDF's test name).
 
 The grid follows the UniformGrid contract of ARCHITECTURE.md so the tracer can be validated
 independently of the grid module; the arrays are Boolean-model arrays (`boolean_platelet_array`),
@@ -7,13 +7,12 @@ not the generator's hard-core arrays.
 
 from __future__ import annotations
 
-from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from paintjax._brdf import AbstractPlateletBRDF
+from paintjax._brdf import LambertianBRDF
 from paintjax._microstructure import boolean_platelet_array
 
 
@@ -57,31 +56,4 @@ def reference_grid(array, shape, capacity=None) -> HandGrid:
     return HandGrid(cell_platelets=jnp.asarray(table), overflow=jnp.asarray(overflow), shape=(nx, ny, nz), cell_size=tuple(float(x) for x in cs))
 
 
-class LambertPlateletBRDF(AbstractPlateletBRDF):
-    """Test platelet BRDF: Lambertian with albedo a (reciprocal, exactly importance sampled)."""
-
-    def __init__(self, a):
-        self.a = jnp.asarray(a)
-
-    a: jnp.ndarray
-    is_delta: ClassVar[bool] = False
-
-    def evaluate(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        return jnp.where(ok, self.a / jnp.pi, 0.0).astype(wi.dtype)
-
-    def sample(self, key, wi):
-        import jax
-
-        u = jax.random.uniform(key, wi.shape[:-1] + (2,), dtype=wi.dtype)
-        r = jnp.sqrt(u[..., 0])
-        ph = 2 * jnp.pi * u[..., 1]
-        wo = jnp.stack([r * jnp.cos(ph), r * jnp.sin(ph), jnp.sqrt(1 - u[..., 0])], -1)
-        return wo, jnp.broadcast_to(self.a, wi.shape[:-1]).astype(wi.dtype)
-
-    def pdf(self, wi, wo):
-        ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        return jnp.where(ok, wo[..., 2] / jnp.pi, 0.0).astype(wi.dtype)
-
-    def albedo(self, cos_i):
-        return jnp.broadcast_to(self.a, jnp.shape(cos_i))
+LambertPlateletBRDF = LambertianBRDF  # the tests' name for the library's reference BRDF

@@ -175,3 +175,22 @@ def test_jit_and_vmap_friendly():
     f_vmap = jax.vmap(table.evaluate)(wi, wo)
     np.testing.assert_allclose(np.asarray(f_jit), np.asarray(f_vmap), rtol=1e-12)
     assert isinstance(table, TabulatedBRDF)
+
+
+def test_lambertian_reference_brdf():
+    """Lambertian platelets: albedo by quadrature of f cos, sample weights = f cos / pdf, reciprocity, bad albedo."""
+    import jax
+
+    from paintjax import LambertianBRDF
+
+    b = LambertianBRDF(0.7)
+    wi = jnp.asarray([[0.3, 0.1, np.sqrt(1 - 0.1)]])
+    wo, w = b.sample(jax.random.PRNGKey(0), jnp.broadcast_to(wi, (4096, 3)))
+    np.testing.assert_allclose(np.asarray(w), 0.7)
+    f, p = np.asarray(b.evaluate(jnp.broadcast_to(wi, wo.shape), wo)), np.asarray(b.pdf(jnp.broadcast_to(wi, wo.shape), wo))
+    np.testing.assert_allclose(f * np.asarray(wo[:, 2]) / p, 0.7, rtol=1e-12)
+    np.testing.assert_allclose(f, np.asarray(b.evaluate(wo, jnp.broadcast_to(wi, wo.shape))))
+    mu = np.linspace(0, 1, 20001)
+    assert float(np.trapezoid(2 * np.pi * mu * 0.7 / np.pi, mu)) == pytest.approx(float(b.albedo(0.5)), rel=1e-8)
+    with pytest.raises(ValueError, match="albedo"):
+        LambertianBRDF(1.2)
