@@ -25,6 +25,7 @@ from ._instrument import (
     STANDARD_ASPECULAR,
     Geometry,
     custom_geometry,
+    hemisphere_quadrature,
     ma98_geometry,
     mirror_tilt_deg,
     refract_into_coat,

@@ -69,3 +69,17 @@ def test_bad_aperture_and_illumination():
         pj.ma98_geometry(0.0)
     with pytest.raises(ValueError, match="detector_polar_deg"):
         pj.custom_geometry(45.0, [95.0])
+
+
+def test_hemisphere_quadrature_integrates_isotropic_radiance():
+    """Isotropic radiance under the coat leaves as R ∝ T_o: Σ w_j T_o,j / n² = 1 − r_i (the coat's internal
+    diffuse reflectance, an independent closed form)."""
+    import jax.numpy as jnp
+
+    from paintjax import coat_internal_diffuse_reflectance, fresnel_dielectric, hemisphere_quadrature
+
+    geo, w = hemisphere_quadrature(1.5)
+    mu = np.cos(np.deg2rad(np.asarray(geo.detector_polar_deg)))
+    T = 1.0 - np.asarray(fresnel_dielectric(jnp.asarray(mu), 1.0, 1.5)[2])
+    assert float(np.sum(w * T)) / 1.5**2 == pytest.approx(1.0 - float(coat_internal_diffuse_reflectance(1.5)), rel=1e-6)
+    assert np.all(np.asarray(geo.illumination_polar_deg) == 0.0) and np.max(np.asarray(geo.detector_polar_deg)) <= 85.0
