@@ -327,16 +327,19 @@ def _traverse(sc: _Scene, p, d, t_limit, any_hit: bool, max_cells: int):
     """3-D DDA through at most `max_cells` periodic cells from p along d, up to distance t_limit.
 
     Single ray (vmapped by the callers); `any_hit` stops at the first occluder
-    (shadow rays). Returns (t_best, index_best, image shift (2,), t_reached, finished). A hit
-    exists when t_best < t_limit; `finished` is False when the cell budget ran out before a
-    decision, and the ray must resume at p + t_reached d.
+    (shadow rays). p may lie in any periodic image of the tile (a hit point, a shadow ray's
+    origin): the walk starts from its image in the tile, and the returned shift is relative to p.
+    Returns (t_best, index_best, image shift (2,), t_reached, finished). A hit exists when
+    t_best < t_limit; `finished` is False when the cell budget ran out before a decision, and the
+    ray must resume at p + t_reached d.
     """
     dtype = p.dtype
     gn = sc.grid_n
     nx, ny, nz = gn[0], gn[1], gn[2]
     cs = sc.cell_size
     Lx, Ly = sc.tile[0], sc.tile[1]
-    px, py, pz = p[0], p[1], p[2]
+    image_x, image_y = Lx * jnp.floor(p[0] / Lx), Ly * jnp.floor(p[1] / Ly)
+    px, py, pz = p[0] - image_x, p[1] - image_y, p[2]
     dx, dy, dz = d[0], d[1], d[2]
 
     def axis_init(pc, dc, c, n):
@@ -394,7 +397,7 @@ def _traverse(sc: _Scene, p, d, t_limit, any_hit: bool, max_cells: int):
     init = (ix, iy, iz, tmx, tmy, tmz, jnp.asarray(t_limit, dtype), jnp.asarray(dummy, jnp.int32), zero, zero, zero, jnp.asarray(False))
     out = jax.lax.fori_loop(0, max_cells, body, init)
     _, _, _, _, _, _, tb, jb, bsx, bsy, treach, done = out
-    return tb, jb, jnp.stack([bsx, bsy]), treach, done
+    return tb, jb, jnp.stack([bsx + image_x, bsy + image_y]), treach, done
 
 
 def _face_normal(sc: _Scene, j, shift, x_hit, d):

@@ -67,7 +67,7 @@ import numpy as np
 
 #: Bump when the meaning of a tracer evaluation changes (physics, settings semantics): emulator
 #: cache keys depend on it (the BRDF table version enters the key separately).
-TRACER_FORWARD_VERSION = 2
+TRACER_FORWARD_VERSION = 3
 
 #: Largest net energy (fraction of the incident flux) the platelets may create, i.e. negative
 #: platelet absorption in the tracer's ledger, before an evaluation is refused.
