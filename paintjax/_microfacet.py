@@ -61,23 +61,9 @@ def to_local(w: Float[Array, "... 3"], m: Float[Array, "... 3"]) -> Float[Array,
     return jnp.stack([jnp.sum(w * t1, -1), jnp.sum(w * t2, -1), jnp.sum(w * m, -1)], axis=-1)
 
 
-def _side_wall_area(tilt: GammaTilt, cos_theta, nodes: int = 64):
-    """(4/π) E_m |m × ω|: mean side-wall projected area per unit aspect t/w, over the tilt law."""
-    x, w = np.polynomial.legendre.leggauss(nodes)
-    t_deg = 0.5 * (x + 1.0) * MAX_TILT_DEG
-    wt = jnp.asarray(0.5 * w * MAX_TILT_DEG) * tilt.pdf_deg(jnp.asarray(t_deg))
-    t = np.deg2rad(t_deg)[:, None]
-    phi = (np.arange(nodes) + 0.5) * (2.0 * np.pi / nodes)
-    ct = jnp.asarray(cos_theta)[..., None, None]
-    st = jnp.sqrt(jnp.clip(1.0 - ct**2, 0.0, 1.0))
-    m_dot_w = np.cos(t) * ct + np.sin(t) * np.cos(phi) * st
-    sine = jnp.mean(jnp.sqrt(jnp.clip(1.0 - m_dot_w**2, 0.0, 1.0)), axis=-1)
-    return (4.0 / jnp.pi) * jnp.sum(wt * sine, axis=-1)
-
-
 def _denominator(tilt: GammaTilt, wi, wo, exit_occlusion: bool, hot_spot: HotSpot | None = None, side_walls: float = 0.0):
     ci, co = wi[..., 2], wo[..., 2]
-    area = (lambda c: tilt.projected_area(c)) if side_walls == 0 else (lambda c: tilt.projected_area(c) + side_walls * _side_wall_area(tilt, c))
+    area = (lambda c: tilt.projected_area(c)) if side_walls == 0 else (lambda c: tilt.projected_area(c) + side_walls * tilt.side_wall_area(c))
     if not exit_occlusion:
         if hot_spot is not None:
             raise ValueError("hot_spot correlates the exit occlusion with the entry: it needs exit_occlusion=True")

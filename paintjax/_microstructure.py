@@ -398,8 +398,8 @@ def boolean_platelet_array(
 
     The scene of the closed-form hot spot (`HotSpot`, exact for horizontal platelets) and of the
     tracer's validation: centres uniform in the tile and in [margin, h_b − margin], tilt from the
-    gamma law (drawn by rejection of `numpy.random.Generator.gamma` above 90°) or horizontal,
-    azimuth uniform, edge direction uniform about the normal. Mean free depth for horizontal
+    gamma law (the inverse-CDF table of `GammaTilt.sample_deg`, as `generate_platelet_array`) or
+    horizontal, azimuth uniform, edge direction uniform about the normal. Mean free depth for horizontal
     platelets: Lx·Ly·h_b / (count·w²).
 
     Arguments:
@@ -434,20 +434,8 @@ def boolean_platelet_array(
         raise ValueError(f"margin must lie in [0, basecoat_thickness/2) = [0, {0.5 * h_b:g}) µm, got {margin!r}")
     rng = np.random.default_rng(int(seed))
     c = np.stack([rng.uniform(0, L[0], count), rng.uniform(0, L[1], count), rng.uniform(margin, h_b - margin, count)], -1)
-    if tilt is None:
-        tilt_rad = np.zeros(count)
-    else:
-        law = _as_tilt(tilt)
-        drawn = np.zeros(0)
-        while drawn.size < count:
-            g = rng.gamma(float(law.shape), float(law.scale_deg), size=4 * (count - drawn.size))
-            drawn = np.concatenate([drawn, g[g < MAX_TILT_DEG]])
-        tilt_rad = np.deg2rad(drawn[:count])
-    ph = rng.uniform(0, 2 * np.pi, count)
-    nrm = np.stack([np.sin(tilt_rad) * np.cos(ph), np.sin(tilt_rad) * np.sin(ph), np.cos(tilt_rad)], -1).reshape(count, 3)
-    a = rng.normal(size=(count, 3))
-    u = a - np.sum(a * nrm, -1, keepdims=True) * nrm
-    u /= np.linalg.norm(u, axis=-1, keepdims=True)
+    tilt_deg = np.zeros(count) if tilt is None else _sample_tilt_np(_as_tilt(tilt), rng, count)
+    nrm, u = _frames(tilt_deg, rng.uniform(0, 2 * np.pi, count), rng.uniform(0, 2 * np.pi, count))
     return PlateletArray(centers=jnp.asarray(c.reshape(count, 3)), normals=jnp.asarray(nrm), axes_u=jnp.asarray(u.reshape(count, 3)),
                          widths=jnp.full((count,), w), thickness=t, tile=L, basecoat_thickness=h_b)
 

@@ -92,10 +92,7 @@ class GammaTilt(eqx.Module):
 
         Exact azimuthal average; Gauss–Legendre over the tilt.
         """
-        x, w = _leggauss(nodes)
-        t_deg = 0.5 * (x + 1.0) * MAX_TILT_DEG
-        wt = 0.5 * w * MAX_TILT_DEG * self.pdf_deg(t_deg)
-        t = np.deg2rad(t_deg)
+        t, wt = self._tilt_nodes(nodes)
         ct = jnp.asarray(cos_theta)[..., None]
         st = jnp.sqrt(jnp.clip(1.0 - ct**2, 0.0, 1.0))
         a = jnp.cos(t) * jnp.abs(ct)
@@ -104,3 +101,23 @@ class GammaTilt(eqx.Module):
         crossing = (2.0 / jnp.pi) * (jnp.sqrt(jnp.clip(b**2 - a**2, 0.0)) + a * jnp.arcsin(ratio))
         mean_abs = jnp.where(a >= b, a, crossing)
         return jnp.sum(wt * mean_abs, axis=-1)
+
+    def side_wall_area(self, cos_theta: ArrayLike, nodes: int = 64) -> Float[Array, "..."]:
+        """(4/π) E_m |m × ω|: mean projected area of a square box's four side walls seen along ω, per
+        unit aspect t/w (a w × w × t box shows (t/w)(4/π)|m × ω| w² on average over its azimuth).
+
+        Gauss–Legendre over the tilt, midpoint rule over the tilt azimuth.
+        """
+        t, wt = self._tilt_nodes(nodes)
+        phi = (np.arange(nodes) + 0.5) * (2.0 * np.pi / nodes)
+        ct = jnp.asarray(cos_theta)[..., None, None]
+        st = jnp.sqrt(jnp.clip(1.0 - ct**2, 0.0, 1.0))
+        m_dot_w = np.cos(t)[:, None] * ct + np.sin(t)[:, None] * np.cos(phi) * st
+        sine = jnp.mean(jnp.sqrt(jnp.clip(1.0 - m_dot_w**2, 0.0, 1.0)), axis=-1)
+        return (4.0 / jnp.pi) * jnp.sum(wt * sine, axis=-1)
+
+    def _tilt_nodes(self, nodes: int):
+        """Gauss–Legendre tilts [rad] on [0, MAX_TILT_DEG] and their weights times the tilt density."""
+        x, w = _leggauss(nodes)
+        t_deg = 0.5 * (x + 1.0) * MAX_TILT_DEG
+        return np.deg2rad(t_deg), 0.5 * w * MAX_TILT_DEG * self.pdf_deg(t_deg)

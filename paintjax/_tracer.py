@@ -95,6 +95,7 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Float, Int
 
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF
+from ._grid import build_grid
 from ._instrument import MAX_POLAR_DEG, Geometry, refract_into_coat
 from ._lightness import reflectance_factor_to_lightness
 from ._interface import check_waviness, reflect, refract, sample_facet_normal, sample_visible_facet, seen_through_facet, slope_sd
@@ -921,17 +922,6 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
     )
 
 
-def _default_grid(array):
-    from . import _grid  # the microstructure issue's uniform grid
-
-    for name in ("build_grid", "uniform_grid", "make_grid"):
-        if hasattr(_grid, name):
-            return getattr(_grid, name)(array)
-    if hasattr(_grid.UniformGrid, "build"):
-        return _grid.UniformGrid.build(array)
-    raise ValueError("no grid given and paintjax._grid offers no builder; pass grid=")
-
-
 def _summarise(tally: np.ndarray, m: int, batches: int):
     """Estimates, batch-means SE, per-batch estimates, energy ledger and rays per column of one pass."""
     lanes = tally.shape[0]
@@ -1000,7 +990,7 @@ def trace(
         geometry: instrument geometry (`ma98_geometry`, `custom_geometry`); delta platelet BRDFs
             need a finite `detector_aperture_deg`.
         brdf: platelet BRDF (default: aluminium mirror in the binder).
-        grid: `UniformGrid` of the array (default: built by `paintjax._grid`).
+        grid: `UniformGrid` of the array (default: `build_grid(array)`).
         n: clearcoat / binder index in (1, 3].
         clearcoat_thickness: h_c in µm (≥ 0).
         primer_albedo: Lambertian primer albedo ρ in [0, 1].
@@ -1035,7 +1025,7 @@ def trace(
         raise ValueError("geometry.detector_aperture_deg must be > 0 for a platelet BRDF with a delta (mirror or "
                          "coherent='delta') part: a delta sends nothing into an exact direction")
     if grid is None:
-        grid = _default_grid(array)
+        grid = build_grid(array)
     if bool(np.asarray(getattr(grid, "overflow", False))):
         raise ValueError("grid.overflow is set: some cell exceeded its capacity; rebuild the grid with a larger capacity")
     cdt = jnp.float64 if (opt.float64 and jax.config.jax_enable_x64) else jnp.float32

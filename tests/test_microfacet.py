@@ -150,7 +150,6 @@ def test_bad_inputs():
 
 def test_side_walls_projected_area():
     """Black side walls of w × w × t boxes: (4/π) E|m × ω| per unit aspect, against independent quadrature."""
-    from paintjax._microfacet import _side_wall_area
 
     tilt = pj.GammaTilt(2.29, 2.18)
     law = stats.gamma(2.29, scale=2.18)
@@ -164,7 +163,7 @@ def test_side_walls_projected_area():
                                   0, np.pi)[0] / np.pi
 
         ref = (4 / np.pi) * integrate.quad(lambda t: law.pdf(t) * mean_sine(t), 0, 90, limit=200)[0] / norm
-        assert float(_side_wall_area(tilt, np.cos(th))) == pytest.approx(ref, rel=2e-4), theta
+        assert float(tilt.side_wall_area(np.cos(th))) == pytest.approx(ref, rel=2e-4), theta
 
 
 def test_side_walls_darken_and_validate():
