@@ -135,3 +135,88 @@ class HotSpot(eqx.Module):
         t = (xc - s[k]) / h
         h00, h10, h01, h11 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t, -2 * t**3 + 3 * t**2, t**3 - t**2
         return h00 * F[k] + h10 * h * rho[k] + h01 * F[k + 1] + h11 * h * rho[k + 1]
+
+
+def _segment_meets_square(p0, p1, cx, cy, cos_r, sin_r, half):
+    """Whether lateral segments p0 → p1 (…, 2) meet squares (centre, rotation, half-width), NumPy."""
+
+    def local(p):
+        dx, dy = p[..., 0] - cx, p[..., 1] - cy
+        return cos_r * dx + sin_r * dy, -sin_r * dx + cos_r * dy
+
+    (x0, y0), (x1, y1) = local(p0), local(p1)
+    lo, hi = np.zeros_like(x0), np.ones_like(x0)
+    for q0, q1 in ((x0, x1), (y0, y1)):
+        dq = q1 - q0
+        still = np.abs(dq) < 1e-300
+        dq = np.where(still, 1.0, dq)
+        t1, t2 = (-half - q0) / dq, (half - q0) / dq
+        inside = np.abs(q0) <= half
+        lo = np.maximum(lo, np.where(still, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2)))
+        hi = np.minimum(hi, np.where(still, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2)))
+    return lo <= hi
+
+
+def boolean_escape_monte_carlo(width: float, thickness: float, mean_free_depth: float, wi, wo, *, samples: int = 20_000,
+                               seed: int = 0, batch: int = 500) -> tuple[float, float]:
+    """Independent Monte Carlo of the single-scatter G of a Boolean layer of horizontal square boxes.
+
+    Reference for `HotSpot.joint_escape`, sharing no code with it or with the tracer: for each
+    sample, fresh Poisson boxes (w × w × t, uniform rotation, density 1/(ℓ w²), tops below the
+    surface) are drawn in the region the two paths can touch; the entry path along −ω_i from the top meets its first box, and
+    G counts the samples whose first box is met on its top face (a black side wall ends the path)
+    and whose exit path along ω_o from there to the top meets no box. Samples that reach depth 10ℓ
+    unhit count as lost (probability < e⁻¹⁰).
+
+    Arguments:
+        width, thickness: square edge w > 0 and box thickness t ≥ 0 [µm] (t = 0: thin platelets).
+        mean_free_depth: ℓ = t/PVC of the layer [µm], > 0.
+        wi, wo: unit internal directions (3,), z > 0, toward the source and the detector.
+        samples, seed, batch: sample count, NumPy seed, samples per vectorised batch.
+
+    Returns:
+        (G, its binomial standard error).
+    """
+    w = positive_finite("width", width, "µm")
+    ell = positive_finite("mean_free_depth", mean_free_depth, "µm")
+    t = float(thickness)
+    if not (np.isfinite(t) and 0.0 <= t < w):
+        raise ValueError(f"thickness must lie in [0, width) µm, got {thickness!r}")
+    wi, wo = np.asarray(wi, float), np.asarray(wo, float)
+    if wi.shape != (3,) or wo.shape != (3,) or wi[2] <= 0 or wo[2] <= 0:
+        raise ValueError("wi and wo must be internal directions (3,) with z > 0")
+    rng = np.random.default_rng(int(seed))
+    depth = 10.0 * ell
+    step_in, step_out = -wi[:2] / wi[2], wo[:2] / wo[2]  # lateral shift per unit depth (entry, down) and height (exit, up)
+    corners = np.array([[0.0, 0.0], step_in * depth, (step_in + step_out) * depth, step_out * depth])
+    reach = w / np.sqrt(2.0)
+    lo, hi = corners.min(0) - reach, corners.max(0) + reach
+    mean_count = (hi - lo).prod() * depth / (ell * w * w)
+    good = done = 0
+    while done < samples:
+        b = min(batch, samples - done)
+        counts = rng.poisson(mean_count, b)
+        m = max(int(counts.max()), 1)
+        real = np.arange(m)[None] < counts[:, None]
+        cx, cy = rng.uniform(lo[0], hi[0], (b, m)), rng.uniform(lo[1], hi[1], (b, m))
+        cz = rng.uniform(t / 2, t / 2 + depth, (b, m))  # boxes wholly below the surface, as in a film
+        rot = rng.uniform(0.0, 2.0 * np.pi, (b, m))
+        cr, sr = np.cos(rot), np.sin(rot)
+        top, bottom = cz - t / 2, cz + t / 2
+        entry = lambda d: d[..., None] * step_in  # noqa: E731
+        met = real & _segment_meets_square(entry(top), entry(bottom), cx, cy, cr, sr, w / 2)
+        first = np.argmin(np.where(met, top, np.inf), axis=1)
+        rows = np.arange(b)
+        hit = met[rows, first]
+        z_hit = np.where(hit, top[rows, first], 0.0)
+        x_hit = entry(z_hit)
+        pick = lambda a: a[rows, first][:, None]  # noqa: E731
+        on_top = hit & _segment_meets_square(x_hit[:, None], x_hit[:, None], pick(cx), pick(cy), pick(cr), pick(sr), w / 2)[:, 0]
+        exit_at = lambda d: x_hit[:, None, :] + (z_hit[:, None] - d)[..., None] * step_out  # noqa: E731
+        upper, lower = top, np.minimum(bottom, z_hit[:, None])
+        above = real & (top < z_hit[:, None]) & (np.arange(m)[None] != first[:, None])
+        blocked = np.any(above & _segment_meets_square(exit_at(lower), exit_at(upper), cx, cy, cr, sr, w / 2), axis=1)
+        good += int(np.sum(on_top & ~blocked))
+        done += b
+    g = good / samples
+    return g, float(np.sqrt(g * (1.0 - g) / samples))

@@ -10,7 +10,8 @@ from scipy import integrate
 
 from paintjax import GammaTilt, ma98_geometry
 from paintjax._beckmann import BeckmannBRDF
-from paintjax._hot_spot import HotSpot, square_overlap_fraction
+from paintjax._hot_spot import HotSpot, boolean_escape_monte_carlo, square_overlap_fraction
+from paintjax._instrument import refract_into_coat
 from paintjax._microfacet import microfacet_reflectance_factor
 
 
@@ -47,6 +48,46 @@ def test_joint_escape_matches_direct_quadrature():
         ref = integrate.quad(lambda u: np.exp(-2.0 * u + inner(u)), 0.0, 60.0, limit=200)[0]
         got = float(hot.joint_escape(wi, wo, 1.0, 1.0))
         assert abs(got - ref) < 2e-4 * ref, (np.asarray(wo), got, ref)
+
+
+@pytest.mark.parametrize("width", [2.0, 16.0])
+def test_joint_escape_matches_boolean_monte_carlo(width):
+    """The closed form against an independent Monte Carlo of the Boolean layer it describes (fresh
+    Poisson squares around every pair of paths), thin horizontal platelets, w/ℓ = 0.4 and 3.2, at
+    45° illumination from 30° beyond specular to the illuminator side."""
+    ell, gamma = 5.0, (-30.0, 25.0, 110.0)
+    geo = ma98_geometry(45.0, gamma)
+    wi = np.asarray(refract_into_coat(geo.illumination_air(), 1.5))
+    wo = np.asarray(refract_into_coat(geo.detectors_air(), 1.5))
+    G = np.asarray(HotSpot.for_layer((width * 0.99999, width, width * 1.00001), thickness=0.02, pvc=0.02 / ell).joint_escape(wi, wo, 1.0, 1.0))
+    for k, g in enumerate(gamma):
+        mc, se = boolean_escape_monte_carlo(width, 0.0, ell, wi, wo[k], samples=20_000, seed=k)
+        print(f"w {width} γ {g}: closed form {G[k]:.4f}, Monte Carlo {mc:.4f} ± {se:.4f}")
+        assert abs(mc - G[k]) < 4.0 * se, g
+        assert G[k] - 0.5 > 10.0 * se  # the check has teeth: independent paths give 1/2
+
+
+def test_boolean_monte_carlo_retro_direction_with_side_walls():
+    """At the retro direction the exit retraces the entry, so G is the top faces' share of first hits,
+    1 / (1 + (t/w)(4/π) tan θ) for Poisson boxes with black side walls: a check of the reference itself."""
+    wi = np.asarray(refract_into_coat(ma98_geometry(45.0).illumination_air(), 1.5))
+    tan = np.sqrt(1.0 - wi[2] ** 2) / wi[2]
+    for w, t in ((4.0, 0.4), (2.0, 0.2)):
+        mc, se = boolean_escape_monte_carlo(w, t, 5.0, wi, wi, samples=20_000, seed=3)
+        exact = 1.0 / (1.0 + (t / w) * (4.0 / np.pi) * tan)
+        print(f"w {w}, t {t}: Monte Carlo {mc:.4f} ± {se:.4f}, exact {exact:.4f}")
+        assert abs(mc - exact) < 4.0 * se
+        assert 1.0 - exact > 10.0 * se
+
+
+def test_boolean_monte_carlo_bad_input():
+    wi = np.array([0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match="thickness"):
+        boolean_escape_monte_carlo(2.0, 2.0, 5.0, wi, wi)
+    with pytest.raises(ValueError, match="mean_free_depth"):
+        boolean_escape_monte_carlo(2.0, 0.0, -1.0, wi, wi)
+    with pytest.raises(ValueError, match="wi and wo"):
+        boolean_escape_monte_carlo(2.0, 0.0, 5.0, wi, -wi)
 
 
 def test_size_law_weights_each_platelet_by_its_area():
