@@ -60,7 +60,7 @@ class HotSpot(eqx.Module):
 
     Fields:
         mean_free_depth: ℓ = t / PVC [µm], the mean depth between platelets along the normal.
-        separation: grid of lateral separations s [µm] (0 … √2 w_max).
+        separation: uniform grid of lateral separations s [µm] (0 … √2 w_max).
         overlap_integral: ∫_0^s ρ(s') ds' on that grid [µm] (constant beyond it).
         overlap: ρ(s) on that grid, the integral's slope (cubic Hermite interpolation: exact to
             O(Δs⁴), so the mean overlap F(s)/s → ρ(0) = 1 as the paths merge).
@@ -130,8 +130,8 @@ class HotSpot(eqx.Module):
         """∫_0^x ρ ds [µm] by cubic Hermite interpolation of the tabulated integral and its slope ρ."""
         s, F, rho = self.separation, self.overlap_integral, self.overlap
         xc = jnp.clip(x, s[0], s[-1])
-        k = jnp.clip(jnp.searchsorted(s, xc, side="right") - 1, 0, s.shape[0] - 2)
-        h = s[k + 1] - s[k]
+        h = s[1] - s[0]  # uniform grid: the cell by division, not by search (this is the wavy model's hot loop)
+        k = jnp.clip(jnp.floor((xc - s[0]) / h).astype(jnp.int32), 0, s.shape[0] - 2)
         t = (xc - s[k]) / h
         h00, h10, h01, h11 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t, -2 * t**3 + 3 * t**2, t**3 - t**2
         return h00 * F[k] + h10 * h * rho[k] + h01 * F[k + 1] + h11 * h * rho[k + 1]
