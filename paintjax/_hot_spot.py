@@ -182,6 +182,10 @@ def boolean_escape_monte_carlo(width: float, thickness: float, mean_free_depth: 
     t = float(thickness)
     if not (np.isfinite(t) and 0.0 <= t < w):
         raise ValueError(f"thickness must lie in [0, width) µm, got {thickness!r}")
+    for name, value in (("samples", samples), ("batch", batch)):
+        if isinstance(value, bool) or int(value) != value or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    samples, batch = int(samples), int(batch)
     wi, wo = np.asarray(wi, float), np.asarray(wo, float)
     if wi.shape != (3,) or wo.shape != (3,) or wi[2] <= 0 or wo[2] <= 0:
         raise ValueError("wi and wo must be internal directions (3,) with z > 0")

@@ -88,6 +88,8 @@ def test_boolean_monte_carlo_bad_input():
         boolean_escape_monte_carlo(2.0, 0.0, -1.0, wi, wi)
     with pytest.raises(ValueError, match="wi and wo"):
         boolean_escape_monte_carlo(2.0, 0.0, 5.0, wi, -wi)
+    with pytest.raises(ValueError, match="samples"):
+        boolean_escape_monte_carlo(2.0, 0.0, 5.0, wi, wi, samples=0)
 
 
 def test_size_law_weights_each_platelet_by_its_area():
