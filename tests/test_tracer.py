@@ -160,9 +160,17 @@ def test_single_scatter_mirror_matches_microfacet_model(thin_mirror_scene, wavin
     the correlation of entry and exit paths over one platelet width (`HotSpot`, w/ℓ = 0.02,
     +1.1 … 1.8 %) and the black side walls of the t/w = 0.02 boxes (`side_walls`, −0.7 … −1.1 %;
     the tracer's `edges="absorb"`). Delta platelets are scored into a finite aperture (8°),
-    averaged identically by the analytic model. The array is large (7360 platelets) and the
-    instrument azimuth random per ray, so the realised tilts of one tile stand for the gamma law
-    (fitting a gamma law to them moves the model by < 0.1 %).
+    averaged identically by the analytic model.
+
+    Limitation (measured 2026-12-02): the model is the ensemble of tiles and the tracer sees one.
+    A mirror reaches a detector only through platelets of one tilt, in the gamma law's tail at 25°
+    and 45°, and a tile holds few of them. Over five tiles (seeds 2–6, flat coat, 200 000 rays
+    each) the tile-to-tile SD of R is 2.8 / 5.6 / 29 % at 15 / 25 / 45°, against a ray SE of
+    0.9 / 1.9 / 5.8 %. This tile (seed 2) passes with |z| ≤ 2.9; seeds 3, 5 and 6 reach |z| = 4.8,
+    8.5 and 4.7. A gamma law fitted to the tile's tilts moves the model by < 0.1 %, so that fit
+    does not capture the tail. The sound check evaluates the model on the tile's own tilts; it is
+    not built yet. Until then this test checks the wiring (it fails by far on a wrong exit
+    occlusion, hot spot or aperture average), not the tracer to its SE.
 
     With a wavy clearcoat (RMS slope 12°) the tracer draws facets at entry (visible-normal
     inversion) and exit (the histogram splat of the delta paths sees the facet refraction); the
