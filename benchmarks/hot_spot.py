@@ -60,11 +60,10 @@ def main(argv=None) -> int:
     library = jax.jit(lambda a, b: hot.joint_escape(a, b, 1.0, 1.0))
     x_nodes = jnp.asarray(np.polynomial.laguerre.laggauss(48)[0])
 
-    def with_search(a, b):  # joint_escape with the searchsorted lookup
-        patched = jax.tree_util.Partial(searchsorted_integral, hot)
+    def with_search(a, b):  # joint_escape with the searchsorted lookup (swapped in while JAX traces it)
         original = HotSpot._integral
         try:
-            HotSpot._integral = lambda self, x: patched(x)
+            HotSpot._integral = searchsorted_integral
             return hot.joint_escape(a, b, 1.0, 1.0)
         finally:
             HotSpot._integral = original

@@ -26,6 +26,13 @@ def reflect(w: Float[Array, "... 3"], normal: Float[Array, "... 3"]) -> Float[Ar
     return 2.0 * jnp.sum(w * normal, axis=-1, keepdims=True) * normal - w
 
 
+def cosine_hemisphere(u1, u2):
+    """Cosine-distributed unit directions about +z (density cos θ / π) from uniforms u1, u2 in [0, 1)."""
+    r = jnp.sqrt(u1)
+    ph = 2.0 * jnp.pi * u2
+    return jnp.stack([r * jnp.cos(ph), r * jnp.sin(ph), jnp.sqrt(jnp.clip(1.0 - u1, 0.0, 1.0))], -1)
+
+
 def _check_reflectance(value) -> None:
     if value is None:
         return
@@ -126,10 +133,7 @@ class LambertianBRDF(AbstractPlateletBRDF):
 
     def sample(self, key, wi):
         u = jax.random.uniform(key, wi.shape[:-1] + (2,), dtype=wi.dtype)
-        r = jnp.sqrt(u[..., 0])
-        ph = 2 * jnp.pi * u[..., 1]
-        wo = jnp.stack([r * jnp.cos(ph), r * jnp.sin(ph), jnp.sqrt(1 - u[..., 0])], -1)
-        return wo, jnp.broadcast_to(self.albedo_value, wi.shape[:-1]).astype(wi.dtype)
+        return cosine_hemisphere(u[..., 0], u[..., 1]), jnp.broadcast_to(self.albedo_value, wi.shape[:-1]).astype(wi.dtype)
 
     def pdf(self, wi, wo):
         ok = (wi[..., 2] > 0) & (wo[..., 2] > 0)

@@ -94,7 +94,7 @@ import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Float, Int
 
-from ._brdf import AbstractPlateletBRDF, MirrorBRDF
+from ._brdf import AbstractPlateletBRDF, MirrorBRDF, cosine_hemisphere
 from ._grid import build_grid
 from ._instrument import MAX_POLAR_DEG, Geometry, refract_into_coat
 from ._lightness import reflectance_factor_to_lightness
@@ -575,9 +575,7 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     wo_loc = wo_loc.astype(dtype)
     s_w = jnp.where(jnp.isfinite(s_w), s_w, 0.0).astype(dtype)
     wo_pl = wo_loc[0] * t1 + wo_loc[1] * t2 + wo_loc[2] * n_ev
-    r = jnp.sqrt(u[5])
-    ph = 2.0 * jnp.pi * u[6]
-    wo_pr = jnp.stack([r * jnp.cos(ph), r * jnp.sin(ph), jnp.sqrt(jnp.clip(1.0 - u[5], 0.0, 1.0))])
+    wo_pr = cosine_hemisphere(u[5], u[6])  # the Lambertian primer
     wo = jnp.where(hit, wo_pl, wo_pr)
     wo = wo / jnp.maximum(jnp.linalg.norm(wo), 1e-30)
     factor = jnp.where(hit, s_w, sc.albedo)
