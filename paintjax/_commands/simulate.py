@@ -10,6 +10,7 @@ import numpy as np
 
 from ._common import add_json_argument, add_output_argument, print_json
 from .._cache import enable_compilation_cache
+from .._profiles import CORRELATIONS
 
 BRDFS = ("wave", "mirror", "kirchhoff")
 BRDF_METHODS = ("abel", "rotate")
@@ -41,6 +42,9 @@ def register(sub) -> None:
     p.add_argument("--brdf-method", choices=BRDF_METHODS, default="abel",
                    help="wave table's 2-D → 3-D step: abel (inverse Abel of the shift-invariant lobe; default) or rotate "
                    "(the original study's rotation of the in-plane lobe about the specular direction)")
+    p.add_argument("--correlation", choices=CORRELATIONS, default="gaussian",
+                   help="autocorrelation of the wave table's synthesised platelet profiles at the given σ, τ (1/e length): "
+                   "gaussian (default) or exponential; wave only")
     p.add_argument("--reflectance", type=float, help="constant platelet reflectance in [0, 1] (mirror only); default: Fresnel of Al")
     p.add_argument("--primer-albedo", type=float, default=DEFAULT_PRIMER_ALBEDO,
                    help=f"Lambertian primer albedo in [0, 1] (default {DEFAULT_PRIMER_ALBEDO})")
@@ -99,12 +103,14 @@ def sample_array(sample: str, *, seed: int = 0, shape=None, scale=None, pvc=None
     )
 
 
-def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=None, wavelength_um=None, method: str = "abel"):
+def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=None, wavelength_um=None, method: str = "abel",
+                  correlation: str = "gaussian"):
     """The platelet BRDF of a `--brdf` choice (the wave table is built or read from the cache).
 
     `wavelength_um` None keeps each BRDF's default wavelength (wave and Kirchhoff 0.5 µm, mirror 0.55 µm).
     `method`: the wave table's 2-D → 3-D step, "abel" (default) or "rotate" (the original study's
-    axisymmetric rotation of the in-plane lobe); wave only.
+    axisymmetric rotation of the in-plane lobe); wave only. `correlation`: autocorrelation of the
+    wave table's synthesised profiles, "gaussian" (default) or "exponential"; wave only.
     """
     from .._brdf import MirrorBRDF
 
@@ -114,6 +120,10 @@ def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=
         raise ValueError(f"brdf_method must be one of {BRDF_METHODS}, got {method!r}")
     if method != "abel" and kind != "wave":
         raise ValueError("brdf_method applies to --brdf wave only (the wave table's 2-D → 3-D step)")
+    if correlation not in CORRELATIONS:
+        raise ValueError(f"correlation must be one of {CORRELATIONS}, got {correlation!r}")
+    if correlation != "gaussian" and kind != "wave":
+        raise ValueError("correlation applies to --brdf wave only (the Kirchhoff BRDF is the Gaussian-surface closed form)")
     wl = {} if wavelength_um is None else {"wavelength_um": float(wavelength_um)}
     if kind == "mirror":
         return MirrorBRDF(n_binder=n, reflectance=reflectance, **wl)
@@ -127,7 +137,7 @@ def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=
         from .._brdf_table import platelet_brdf_table
     except ImportError as err:  # pragma: no cover - depends on the BRDF issue
         raise ValueError(f"brdf 'wave' is unavailable: {err}") from None
-    return platelet_brdf_table(sigma, tau, n_medium=n, method=method, **wl)
+    return platelet_brdf_table(sigma, tau, n_medium=n, method=method, correlation=correlation, **wl)
 
 
 def simulate(
@@ -141,6 +151,7 @@ def simulate(
     thickness=None,
     brdf: str = "wave",
     brdf_method: str = "abel",
+    correlation: str = "gaussian",
     reflectance=None,
     primer_albedo: float = DEFAULT_PRIMER_ALBEDO,
     waviness: float = 0.0,
@@ -175,7 +186,8 @@ def simulate(
     sigma = s.sigma.value if sigma is None else sigma
     tau = s.tau.value if tau is None else tau
     wavelengths_um = [w / 1000.0 for w in SPECTRAL_NODES_NM] if spectral else [None]
-    platelets = [platelet_brdf(brdf, sigma=sigma, tau=tau, n=n, reflectance=reflectance, wavelength_um=w, method=brdf_method)
+    platelets = [platelet_brdf(brdf, sigma=sigma, tau=tau, n=n, reflectance=reflectance, wavelength_um=w, method=brdf_method,
+                               correlation=correlation)
                  for w in wavelengths_um]
     array = sample_array(s.name, seed=seed, shape=shape, scale=scale, pvc=pvc, thickness=thickness)
     grid = build_grid(array)
@@ -200,6 +212,7 @@ def simulate(
     out["sample"] = s.name
     out["brdf"] = brdf
     out["brdf_method"] = brdf_method
+    out["correlation"] = correlation
     out["aperture_deg"] = aperture
     out["waviness_deg"] = float(waviness)
     out["spectral"] = bool(spectral)
@@ -244,19 +257,20 @@ def run(args) -> int:
     enable_compilation_cache()
     r = simulate(
         args.sample, shape=args.shape, scale=args.scale, sigma=args.sigma, tau=args.tau, pvc=args.pvc,
-        thickness=args.thickness, brdf=args.brdf, brdf_method=args.brdf_method, reflectance=args.reflectance, primer_albedo=args.primer_albedo,
+        thickness=args.thickness, brdf=args.brdf, brdf_method=args.brdf_method, correlation=args.correlation,
+        reflectance=args.reflectance, primer_albedo=args.primer_albedo,
         waviness=args.waviness, rays=args.rays, seed=args.seed, single_scatter=args.single_scatter, spectral=args.spectral,
         progress=args.spectral and not args.json,
     )
     r["seed"] = args.seed
-    r["inputs"] = {k: getattr(args, k) for k in ("shape", "scale", "sigma", "tau", "pvc", "thickness", "brdf", "brdf_method", "reflectance",
+    r["inputs"] = {k: getattr(args, k) for k in ("shape", "scale", "sigma", "tau", "pvc", "thickness", "brdf", "brdf_method", "correlation", "reflectance",
                                                  "primer_albedo", "waviness", "rays", "seed", "single_scatter", "spectral")}
     atomic_write_json(f"{args.out}/simulate.json", r)
     png = _plot(r, args.out)
     if args.json:
         print_json({k: r[k] for k in _JSON_KEYS + (_SPECTRAL_KEYS if args.spectral else ())})
         return 0
-    print(f"Ray tracer, {r['sample']}: {r['brdf']}{' (in-plane lobe rotated)' if r['brdf_method'] == 'rotate' else ''} platelets, {r['platelets']} in a {r['tile_um'][0]:.0f} × {r['tile_um'][1]:.0f} µm tile"
+    print(f"Ray tracer, {r['sample']}: {r['brdf']}{' (in-plane lobe rotated)' if r['brdf_method'] == 'rotate' else ''}{' (exponential profiles)' if r['correlation'] == 'exponential' else ''} platelets, {r['platelets']} in a {r['tile_um'][0]:.0f} × {r['tile_um'][1]:.0f} µm tile"
           f"{', detector aperture %.1f°' % r['aperture_deg'] if r['aperture_deg'] else ''}"
           f"{', single scattering' if args.single_scatter else ''}"
           f"{', spectral (D65, CIE 1964 10°; R factor = Y/100)' if args.spectral else ''}")
