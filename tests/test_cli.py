@@ -66,6 +66,7 @@ def test_readable_table(capsys):
         (["table1", "--target-se", "0"], "target_se"),
         (["table1", "--waviness", "40"], "waviness"),
         (["simulate", "--brdf", "mirror", "--brdf-method", "rotate"], "brdf_method"),
+        (["simulate", "--brdf", "kirchhoff", "--correlation", "exponential"], "correlation"),
         (["simulate", "--rays", "0"], "rays"),
         (["simulate", "--sample", "gold"], "unknown sample"),
     ],
