@@ -15,9 +15,16 @@ independent tiles (seeds seed, seed + 1, …):
 * on the same tiles, the tracer under a wavy coat (RMS slope 12°) against the wavy ensemble model:
   the tile-to-tile spread that the wavy test cannot see.
 
-Writes experiments/output/tile_single_scatter/{summary.json, tile_single_scatter.png} (atomic).
+`--tile` widens the tile (same platelet density): the tile-to-tile spread falls with the tile's
+area, so the mean over tiles checks the ensemble model more finely (and shows any effect of the
+periodic images on the 40 µm tile).
+
+Writes {--out}/{summary.json, tile_single_scatter.png} (atomic; default
+experiments/output/tile_single_scatter).
 
 Run: python experiments/tile_single_scatter.py [--tiles 16] [--tracer-tiles 6] [--seed 2] [--rays 200000] [--samples 100000]
+     [--tile 40] [--out DIR]
+e.g. python experiments/tile_single_scatter.py --tile 80 --tiles 8 --tracer-tiles 0 --seed 100 --out experiments/output/tile_single_scatter_80um
 """
 
 from __future__ import annotations
@@ -40,15 +47,15 @@ from paintjax._tile_single_scatter import tile_mirror_single_scatter  # noqa: E4
 from paintjax._tracer import TracerOptions  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "tile_single_scatter"
-N, WIDTH, THICKNESS, MEAN_FREE_DEPTH, FILM, TILE = 1.5, 1.0, 0.02, 50.0, 230.0, 40.0  # the tracer tests' thin-mirror scene
+N, WIDTH, THICKNESS, MEAN_FREE_DEPTH, FILM, TILE = 1.5, 1.0, 0.02, 50.0, 230.0, 40.0  # the tracer tests' thin-mirror scene (TILE: default)
 TILT = (2.29, 2.18)
 ASPECULAR = (15.0, 25.0, 45.0)
 WAVINESS = 12.0
 
 
-def thin_mirror_tile(seed: int):
-    count = int(round(TILE * TILE * FILM / (MEAN_FREE_DEPTH * WIDTH**2)))
-    array = boolean_platelet_array(seed, count, tile=(TILE, TILE), basecoat_thickness=FILM, width=WIDTH, thickness=THICKNESS,
+def thin_mirror_tile(seed: int, tile: float = TILE):
+    count = int(round(tile * tile * FILM / (MEAN_FREE_DEPTH * WIDTH**2)))
+    array = boolean_platelet_array(seed, count, tile=(tile, tile), basecoat_thickness=FILM, width=WIDTH, thickness=THICKNESS,
                                    tilt=TILT, margin=0.6)
     return array, build_grid(array, 4.0)
 
@@ -59,14 +66,14 @@ def ensemble(geometry, mirror, waviness_deg: float) -> np.ndarray:
                                                     side_walls=THICKNESS / WIDTH, aperture_nodes=12, waviness_deg=waviness_deg))
 
 
-def run(tiles: int, tracer_tiles: int, seed: int, rays: int, samples: int) -> dict:
+def run(tiles: int, tracer_tiles: int, seed: int, rays: int, samples: int, tile: float = TILE) -> dict:
     geometry = ma98_geometry(45.0, ASPECULAR, detector_aperture_deg=8.0)
     mirror = MirrorBRDF(n_binder=N)
     flat, wavy = ensemble(geometry, mirror, 0.0), ensemble(geometry, mirror, WAVINESS)
     rows = []
     for k in range(tiles):
         t0 = time.perf_counter()
-        array, grid = thin_mirror_tile(seed + k)
+        array, grid = thin_mirror_tile(seed + k, tile)
         model = tile_mirror_single_scatter(array, geometry, mirror, grid, n=N, samples=samples, seed=0)
         row = {"seed": seed + k, "tile_model": model["reflectance_factor"].tolist(), "tile_model_se": model["se"].tolist(),
                "visibility": model["visibility"].tolist(), "tile_over_ensemble": (model["reflectance_factor"] / flat - 1.0).tolist()}
@@ -88,7 +95,7 @@ def run(tiles: int, tracer_tiles: int, seed: int, rays: int, samples: int) -> di
     wavy_dev = np.array([r["wavy_tracer_over_ensemble"] for r in traced])
     wavy_se = np.array([np.asarray(r["tracer_wavy_se"]) / np.asarray(r["tracer_wavy"]) for r in traced])
     return {
-        "aspecular_deg": list(ASPECULAR), "tiles": tiles, "seed": seed, "rays": rays, "samples": samples, "waviness_deg": WAVINESS,
+        "aspecular_deg": list(ASPECULAR), "tile_um": tile, "platelets": int(array.count), "tiles": tiles, "seed": seed, "rays": rays, "samples": samples, "waviness_deg": WAVINESS,
         "ensemble_model": flat.tolist(), "ensemble_model_wavy": wavy.tolist(), "rows": rows,
         "tile_over_ensemble_mean": dev.mean(0).tolist(), "tile_over_ensemble_sem": (dev.std(0, ddof=1) / np.sqrt(tiles)).tolist(),
         "tile_to_tile_sd": dev.std(0, ddof=1).tolist(),
@@ -131,7 +138,8 @@ def plot(result: dict, path: Path) -> Path:
     axes[1].legend(fontsize=7)
     for ax in axes:
         ax.grid(alpha=0.3)
-    fig.suptitle(f"Thin mirror platelets, single scattering, 8° apertures, {result['rays']} rays per tracer run", fontsize=9)
+    fig.suptitle(f"Thin mirror platelets, single scattering, 8° apertures, {result['tile_um']:g} µm tiles, {result['rays']} rays per tracer run",
+                 fontsize=9)
     path = atomic_savefig(fig, path)
     plt.close(fig)
     return path
@@ -144,6 +152,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=2)
     ap.add_argument("--rays", type=int, default=200_000, help="tracer rays per run")
     ap.add_argument("--samples", type=int, default=100_000, help="visibility samples per detector of the tile model")
+    ap.add_argument("--tile", type=float, default=TILE, help=f"tile side [µm] at the same platelet density (default {TILE:g}, the test's)")
+    ap.add_argument("--out", type=Path, default=OUT, help="output folder")
     args = ap.parse_args(argv)
     if args.tiles < 2:
         ap.error(f"--tiles must be an integer ≥ 2 (the ensemble's standard error is the tile-to-tile spread), got {args.tiles}")
@@ -151,17 +161,19 @@ def main(argv=None) -> int:
         ap.error(f"--tracer-tiles must lie in [0, --tiles = {args.tiles}], got {args.tracer_tiles}")
     if args.rays < 1 or args.samples < 2:
         ap.error(f"--rays must be ≥ 1 and --samples ≥ 2, got {args.rays}, {args.samples}")
+    if not args.tile >= 2.0:
+        ap.error(f"--tile must be ≥ 2 µm (√2 platelet widths and more), got {args.tile}")
     if args.seed < 0:
         ap.error(f"--seed must be a non-negative integer, got {args.seed}")
     enable_compilation_cache()
-    result = run(args.tiles, args.tracer_tiles, args.seed, args.rays, args.samples)
-    OUT.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(OUT / "summary.json", result)
+    result = run(args.tiles, args.tracer_tiles, args.seed, args.rays, args.samples, args.tile)
+    args.out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(args.out / "summary.json", result)
     print("tile model / ensemble − 1 over", args.tiles, "tiles:", np.round(result["tile_over_ensemble_mean"], 4), "± (SEM)",
           np.round(result["tile_over_ensemble_sem"], 4), "; tile-to-tile SD", np.round(result["tile_to_tile_sd"], 3))
     print("max |tracer − tile| / SE:", result["tracer_minus_tile_z_max"], "; wavy tile-to-tile SD", result["wavy_tile_to_tile_sd"],
           "against ray SE", result["wavy_ray_se_rms"])
-    print(f"plot: {plot(result, OUT / 'tile_single_scatter.png')}; data: {OUT / 'summary.json'}")
+    print(f"plot: {plot(result, args.out / 'tile_single_scatter.png')}; data: {args.out / 'summary.json'}")
     return 0
 
 

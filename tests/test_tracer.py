@@ -165,7 +165,8 @@ def test_single_scatter_mirror_matches_tile_model(thin_mirror_scene):
     Measured (`experiments/tile_single_scatter.py`): on tiles 2–7 |z| ≤ 1.3 except 2.66 at 45° on
     tile 5; ten more ray seeds there average −1.0 SE, with a seed-to-seed SD of 1.02 / 0.89 / 0.59
     times the quoted SE. Averaged over the 16 tiles the tile model is within −1.1 ± 0.5 / −0.1 ±
-    1.1 / +2.9 ± 5.4 % of the ensemble model, which checks that model at the tile spread ÷ 4.
+    1.1 / +2.9 ± 5.4 % of the ensemble model, and over 8 tiles of 80 µm within −0.1 ± 0.4 /
+    0.0 ± 1.0 / +1.6 ± 2.3 %, which checks that model (the hot spot and side walls included).
     """
     from paintjax._tile_single_scatter import tile_mirror_single_scatter
 
