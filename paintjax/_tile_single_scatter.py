@@ -16,11 +16,12 @@ factor averaged over a detector cone of solid angle Ω is
 
 V = 1 when the beam reaches x from the top of the basecoat (walked downward, as the tracer's
 rays go, so a face point inside an overlapping box is shadowed by it) and the exit path from x
-up along ω_o meets no box. Z (the tile's own tilts, no occlusion) is a midpoint rule over φ for
-every platelet; V̄ is the mean visibility of face points drawn from Z's integrand times a depth
-proxy (importance sampling), walked with `_tracer._traverse`, which `tests/test_tracer.py`
-checks against a brute-force search over all periodic images. So R carries a Monte Carlo error
-from V̄ alone, stated as its standard error.
+up along ω_o meets no box (side walls only block: the tracer's `edges="absorb"`, under which a
+ray that first meets a side wall is absorbed). Z (the tile's own tilts, no occlusion) is a
+midpoint rule over φ for every platelet; V̄ is the mean visibility of face points drawn from Z's
+integrand times a depth proxy (importance sampling), walked with `_tracer._traverse`, which
+`tests/test_tracer.py` checks against a brute-force search over all periodic images. So R
+carries a Monte Carlo error from V̄ alone, stated as its standard error.
 """
 
 from __future__ import annotations
@@ -78,6 +79,9 @@ def _weights(normals, widths, depth, c_phi, s_phi, wi, det_air, cos_alpha, n, sc
 def tile_mirror_single_scatter(array, geometry: Geometry, mirror: MirrorBRDF, grid, *, n: float, samples: int = 20_000,
                                seed: int = 0, azimuth_nodes: int = 2048, max_cells: int = 32):
     """Single-scatter reflectance factor of one tile's mirror platelets into each finite detector aperture.
+
+    What `trace(..., single_scatter=True, options=TracerOptions(edges="absorb"))` estimates on the
+    same tile under a flat coat (with its default random instrument azimuth).
 
     Arguments:
         array: the `PlateletArray` (its own tilts, positions, widths and boxes).
