@@ -33,6 +33,7 @@ import numpy as np
 
 from ._brdf import MirrorBRDF
 from ._instrument import Geometry
+from ._microfacet import check_coat_index
 from ._optics import fresnel_dielectric
 
 
@@ -93,11 +94,12 @@ def tile_mirror_single_scatter(array, geometry: Geometry, mirror: MirrorBRDF, gr
         samples: visibility points per detector.
         seed: NumPy seed of the visibility points.
         azimuth_nodes: midpoint nodes of the instrument azimuth for Z.
-        max_cells: cells per round of the visibility walk (undecided rays resume).
+        max_cells: cells per round of the visibility walk, ≥ 2 (undecided rays resume).
 
     Returns:
         dict of per-detector arrays: `reflectance_factor` Z·V̄, `se` (from V̄), `unoccluded` Z and
-        `visibility` V̄.
+        `visibility` V̄. A detector no mirror path reaches has Z = 0 and returns zeros (R = 0 is
+        then exact); float64 must be enabled.
     """
     from ._tracer import _traverse, build_scene  # the validated grid walk
 
@@ -106,8 +108,12 @@ def tile_mirror_single_scatter(array, geometry: Geometry, mirror: MirrorBRDF, gr
     alpha = float(geometry.detector_aperture_deg)
     if not alpha > 0.0:
         raise ValueError(f"geometry.detector_aperture_deg must be > 0 for mirror platelets, got {alpha!r}")
-    if int(samples) < 2 or int(azimuth_nodes) < 8:
-        raise ValueError(f"samples must be ≥ 2 and azimuth_nodes ≥ 8, got {samples!r}, {azimuth_nodes!r}")
+    for name, value, low in (("samples", samples, 2), ("azimuth_nodes", azimuth_nodes, 8), ("max_cells", max_cells, 2)):
+        if not (isinstance(value, (int, np.integer)) and value >= low):
+            raise ValueError(f"{name} must be an integer ≥ {low}, got {value!r}")
+    check_coat_index(n)
+    if jnp.asarray(0.0).dtype != jnp.float64:  # the face offsets and walk decisions need it
+        raise RuntimeError("tile_mirror_single_scatter needs float64: call jax.config.update('jax_enable_x64', True) first")
     Lx, Ly = (float(x) for x in array.tile)
     h_b, t = float(array.basecoat_thickness), float(array.thickness)
     centres = np.asarray(array.centers, float).reshape(-1, 3)
@@ -155,8 +161,8 @@ def tile_mirror_single_scatter(array, geometry: Geometry, mirror: MirrorBRDF, gr
         d_in = _rotate_z(np.broadcast_to(wi, (int(samples), 3)), c_phi[l], s_phi[l])
         d_out = _rotate_z(wo, c_phi[l], s_phi[l])
         t_in = (h_b - x[:, 2]) / d_in[:, 2]
-        visible = _path_clear(walk, x + t_in[:, None] * d_in, -d_in, t_in, max_cells)
-        visible &= _path_clear(walk, x, d_out, (h_b - x[:, 2]) / d_out[:, 2], max_cells)
+        visible = _path_clear(walk, x + t_in[:, None] * d_in, -d_in, t_in, eps)
+        visible &= _path_clear(walk, x, d_out, (h_b - x[:, 2]) / d_out[:, 2], eps)
         v = visible / proxy[j, l]  # V / √τ̂ under the sampling density ∝ W √τ̂
         out["reflectance_factor"][k] = Q * v.mean()
         out["se"][k] = Q * v.std(ddof=1) / np.sqrt(v.size)
@@ -164,10 +170,11 @@ def tile_mirror_single_scatter(array, geometry: Geometry, mirror: MirrorBRDF, gr
     return out
 
 
-def _path_clear(walk, p, d, limit, max_cells):
+def _path_clear(walk, p, d, limit, eps):
     """Whether each ray from p along d meets no box within distance `limit`.
 
-    Walks `max_cells` cells per round and resumes the undecided rays, compacted into
+    `walk` covers a fixed number of cells per round; undecided rays resume `eps` past the point
+    reached (as the tracer does, so a ray on a cell boundary cannot stall), compacted into
     power-of-two batches (few compilations).
     """
     p, d, limit = np.array(p, float), np.asarray(d, float), np.array(limit, float)
@@ -184,7 +191,7 @@ def _path_clear(walk, p, d, limit, max_cells):
         clear[todo[done & ~hit]] = True
         go = ~done & ~hit
         nxt = todo[go]
-        p[nxt] += reach[go, None] * d[nxt]
-        limit[nxt] -= reach[go]
+        p[nxt] += (reach[go, None] + eps) * d[nxt]
+        limit[nxt] -= reach[go] + eps
         todo = nxt
     raise RuntimeError("visibility walk did not finish")
