@@ -1,9 +1,12 @@
-"""Validation of the ray-batch tracer (paintjax._tracer) against closed forms.
+"""Validation of the ray-batch tracer (paintjax._tracer) against closed forms and independent models.
 
 Every statistical check states its tolerance as a multiple K of the Monte Carlo standard error
 (batch means over 32 lane groups); K = 4 gives a false-alarm rate below 1e-4 per comparison.
 Scenes are small Boolean-model platelet arrays (`boolean_platelet_array`, independent placement); all the
-non-delta tests share one compilation (same padded shapes, same options), the mirror test a second.
+non-delta tests share one compilation (same padded shapes, same options), the flat and wavy
+mirror tests one each. The flat mirror test's reference is the single-scatter model of its own
+tile (`_tile_single_scatter`), since for mirrors one tile departs from the ensemble by more than
+the ray noise.
 """
 
 from __future__ import annotations
