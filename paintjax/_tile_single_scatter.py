@@ -32,15 +32,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._brdf import MirrorBRDF
-from ._instrument import Geometry
+from ._instrument import Geometry, refract_into_coat
 from ._microfacet import check_coat_index
 from ._optics import fresnel_dielectric
-
-
-def _rotate_z(v, c, s):
-    """Rotate vectors v (..., 3) about z by the angle with cosine c and sine s (broadcast)."""
-    x = jnp if isinstance(v, jax.Array) else np
-    return x.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1], v[..., 2] + 0.0 * c], -1)
+from ._tracer import _rotz, _traverse, build_scene  # the tracer's rotation and its validated grid walk
 
 
 def _mirror_paths(m, c, s, wi, n):
@@ -50,7 +45,7 @@ def _mirror_paths(m, c, s, wi, n):
     incidence on it, the internal exit direction ω_o and its direction in air (z = 0 where the
     ray goes down or is totally reflected).
     """
-    m_inst = _rotate_z(m, c, -s)
+    m_inst = _rotz(m, c, -s)
     cos_i = m_inst @ wi
     face = jnp.where(cos_i >= 0.0, 1.0, -1.0)
     cos_i = jnp.abs(cos_i)
@@ -101,8 +96,6 @@ def tile_mirror_single_scatter(array, geometry: Geometry, mirror: MirrorBRDF, gr
         `visibility` V̄. A detector no mirror path reaches has Z = 0 and returns zeros (R = 0 is
         then exact); float64 must be enabled.
     """
-    from ._tracer import _traverse, build_scene  # the validated grid walk
-
     if geometry.illumination_aperture_deg != 0.0:
         raise ValueError("tile_mirror_single_scatter needs a collimated illumination (illumination_aperture_deg = 0)")
     alpha = float(geometry.detector_aperture_deg)
@@ -124,7 +117,7 @@ def tile_mirror_single_scatter(array, geometry: Geometry, mirror: MirrorBRDF, gr
 
     wi_air = np.asarray(geometry.illumination_air(), float)
     det_air = np.asarray(geometry.detectors_air(), float)
-    wi = np.concatenate([wi_air[:2] / n, [np.sqrt(1.0 - np.sum((wi_air[:2] / n) ** 2))]])
+    wi = np.asarray(refract_into_coat(jnp.asarray(wi_air), n))
     T_i = 1.0 - float(fresnel_dielectric(wi_air[2], 1.0, n)[2])
     cos_alpha = np.cos(np.deg2rad(alpha))
     omega = 2.0 * np.pi * (1.0 - cos_alpha)
@@ -140,7 +133,7 @@ def tile_mirror_single_scatter(array, geometry: Geometry, mirror: MirrorBRDF, gr
     sc = build_scene(array, geometry, mirror, grid, n=n, clearcoat_thickness=0.0, primer_albedo=0.0, dtype=jnp.float64)
     walk = jax.jit(jax.vmap(lambda p, d, tl: _traverse(sc, p, d, tl, True, max_cells)))
     rng = np.random.default_rng(seed)
-    eps = 1e-9 * max(Lx, Ly, h_b)
+    eps = float(sc.eps)
     out = {k: np.zeros(len(det_air)) for k in ("reflectance_factor", "se", "unoccluded", "visibility")}
     for k, axis in enumerate(det_air):
         w_k = weight[k]
@@ -158,8 +151,8 @@ def tile_mirror_single_scatter(array, geometry: Geometry, mirror: MirrorBRDF, gr
         x = centres[j] + (0.5 * t + eps) * m_face + st[:, :1] * axes_u[j] + st[:, 1:] * axes_v[j]
         # entry: down from the top of the basecoat to x, as the beam goes (a face point inside an
         # overlapping box is then shadowed by that box); exit: up from x
-        d_in = _rotate_z(np.broadcast_to(wi, (int(samples), 3)), c_phi[l], s_phi[l])
-        d_out = _rotate_z(wo, c_phi[l], s_phi[l])
+        d_in = np.asarray(_rotz(jnp.asarray(wi), jnp.asarray(c_phi[l]), jnp.asarray(s_phi[l])))
+        d_out = np.asarray(_rotz(jnp.asarray(wo), jnp.asarray(c_phi[l]), jnp.asarray(s_phi[l])))
         t_in = (h_b - x[:, 2]) / d_in[:, 2]
         visible = _path_clear(walk, x + t_in[:, None] * d_in, -d_in, t_in, eps)
         visible &= _path_clear(walk, x, d_out, (h_b - x[:, 2]) / d_out[:, 2], eps)

@@ -275,7 +275,9 @@ def _shadow_cell_bound(shape, cell, h_b, n) -> int:
 
 
 def _rotz(v, c, s):
-    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1], v[..., 2]], axis=-1)
+    """Rotate vectors v (..., 3) about z by the angle with cosine c and sine s (c, s broadcast against v[..., 0])."""
+    z = jnp.broadcast_to(v[..., 2], jnp.broadcast_shapes(jnp.shape(c), v.shape[:-1]))
+    return jnp.stack([c * v[..., 0] - s * v[..., 1], s * v[..., 0] + c * v[..., 1], z], axis=-1)
 
 
 def _cone(axis, cos_alpha, u1, u2):
