@@ -29,7 +29,7 @@ cat "$OUT/tracer_gpu.log"  # stage-by-stage progress, kept even when the time li
 
 # Validation on the accelerator: the tracer's closed-form tests (white furnace, energy, single
 # scatter vs the analytic models, estimator agreement, reciprocity, determinism).
-timeout 240 "$PY" -m pytest tests/test_tracer.py -q -x -p no:cacheprovider 2>&1 | tee "$OUT/test_tracer.log"
+timeout 240 "$PY" -m pytest tests/test_tracer.py tests/test_tracer_single_scatter.py -q -x -p no:cacheprovider 2>&1 | tee "$OUT/test_tracer.log"
 echo "test_tracer exit ${PIPESTATUS[0]}" | tee -a "$OUT/test_tracer.log"
 
 tail -c 4000 "$OUT/tracer_gpu.json"

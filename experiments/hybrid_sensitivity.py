@@ -20,6 +20,13 @@ count so every variant sees the same random numbers) under one change at a time,
   and τ, not the shape). Such profiles are rough down to the solver's grid (12 points per
   wavelength), so their absorption is not converged in the discretisation (reflectance 0.842 at
   12, 0.830 at 24 points per wavelength, normal incidence; Gaussian 0.8855 at both).
+* `platelets D50 10 µm` / `platelets D50 24 µm`: the sample's log-normal width law scaled to
+  another median (the brief gives 10–30 µm across and no measured size law; the default D50 is
+  16 µm), D10, D90 and the tile in proportion, so the platelet count stays the same.
+* `platelets 0.5 µm thick`: half the original study's 1 µm (twice as many platelets at the PVC).
+  Width and thickness act through the hot spot (the ratio of platelet width to the mean free
+  depth t/PVC) and through the side walls; for these rows the analytic hot-spot model of the
+  same layer is reported beside the tracer.
 
 Beside the tracer rows, the analytic single-scatter model (`_microfacet`, no tracing) with the same
 Kirchhoff platelet BRDF: entry and exit paths attenuated independently (exact for platelets much
@@ -67,28 +74,42 @@ VARIANTS = {
     "single scatter, kirchhoff": {"single_scatter": True, "brdf": "kirchhoff"},
     "lobe rotated": {"brdf_method": "rotate"},
     "exponential profiles": {"correlation": "exponential"},
+    "platelets D50 10 µm": {"d50": 10.0},
+    "platelets D50 24 µm": {"d50": 24.0},
+    "platelets 0.5 µm thick": {"platelet_thickness": 0.5},
 }
 
 
 def plot(result: dict, path: Path) -> Path:
+    """Left: L* of the baseline, the measurement and the analytic models; right: ΔL* of every row."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     gamma = np.asarray(result["aspecular_deg"])
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    rows = {**result["variants"], **result["analytic"]}
+    fig, (ax, hm) = plt.subplots(1, 2, figsize=(13, 5.2), gridspec_kw={"width_ratios": [1, 1.15]})
     ax.errorbar(gamma, result["measured"], yerr=0.3, fmt="ko", label="measured", zorder=5)
-    for k, (name, row) in enumerate(result["variants"].items()):
-        ax.errorbar(gamma + 0.6 * (k - (len(result["variants"]) - 1) / 2), row["L_star"], yerr=row["L_star_se"], fmt="-" if name == "baseline" else "--",
-                    marker="s", ms=3, label=f"{name} (RMS {row['rms']:.1f})")
-    for name, row in result["analytic"].items():
-        ax.plot(gamma, row["L_star"], ":", marker="v", ms=4, color={"analytic, independent occlusion": "k", "analytic, hot spot": "darkred"}.get(name, "darkcyan"), label=f"{name} (RMS {row['rms']:.1f})")
+    base = result["variants"]["baseline"]
+    ax.errorbar(gamma, base["L_star"], yerr=base["L_star_se"], fmt="s-", color="C0", label=f"hybrid baseline (RMS {base['rms']:.1f})")
+    for (name, row), style in zip(result["analytic"].items(), ("k:", "r:", "c:")):
+        ax.plot(gamma, row["L_star"], style, marker="v", ms=4, label=f"{name} (RMS {row['rms']:.1f})")
     ax.set_xlabel("aspecular angle [deg]")
     ax.set_ylabel("L*")
-    ax.set_title(f"{result['sample']}: hybrid model under one change at a time ({result['rays']} rays, seed 0)")
+    ax.set_title(f"{result['sample']}: baseline and analytic models")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=8)
+    delta = np.array([np.asarray(r["delta"], dtype=float) for r in rows.values()])
+    lim = float(np.max(np.abs(delta)))
+    im = hm.imshow(delta, cmap="RdBu_r", vmin=-lim, vmax=lim, aspect="auto")
+    for (i, j), v in np.ndenumerate(delta):
+        hm.text(j, i, f"{v:+.1f}", ha="center", va="center", fontsize=7)
+    hm.set_xticks(range(gamma.size), [f"{g:.0f}°" for g in gamma])
+    hm.set_yticks(range(len(rows)), [f"{name} (RMS {r['rms']:.1f})" for name, r in rows.items()], fontsize=8)
+    hm.set_title(f"model − measured L* (tracer rows: {result['rays']} rays, seed 0)")
+    fig.colorbar(im, ax=hm, label="ΔL*")
+    fig.tight_layout()
     path = atomic_savefig(fig, path)
     plt.close(fig)
     return path
@@ -103,17 +124,25 @@ def main(argv=None) -> int:
     s = load_sample(args.sample)
     measured = np.asarray(s.L_star)
     result = {"sample": args.sample, "rays": args.rays, "measured": measured, "aspecular_deg": list(s.aspecular_deg), "variants": {}}
+    geometry, tilt = ma98_geometry(45.0), GammaTilt(s.tilt_shape.value, s.tilt_scale.value)
+    platelet = BeckmannBRDF(s.sigma.value, s.tau.value, n_medium=s.binder_index)
     for name, kw in VARIANTS.items():
         t0 = time.perf_counter()
         r = simulate(args.sample, rays=args.rays, seed=0, **kw)
         L = np.asarray(r["L_star"])
         row = {"L_star": L, "L_star_se": np.asarray(r["L_star_se"]), "delta": L - measured,
                "rms": float(np.sqrt(np.mean((L - measured) ** 2))), "energy": r["energy"], "seconds": time.perf_counter() - t0}
+        if "d50" in kw or "platelet_thickness" in kw:  # the analytic hot-spot model of the same layer
+            k = kw.get("d50", s.size_d50) / s.size_d50
+            hot_spot = HotSpot.for_layer((k * s.size_d10, k * s.size_d50, k * s.size_d90),
+                                         thickness=kw.get("platelet_thickness", s.platelet_thickness), pvc=s.pvc.value)
+            row["analytic_hot_spot_L_star"] = np.asarray(reflectance_factor_to_lightness(microfacet_reflectance_factor(
+                geometry, tilt, n=s.binder_index, platelet=platelet, hot_spot=hot_spot)))
         result["variants"][name] = row
         print(f"{name:>32}: L* " + " ".join(f"{x:6.1f}" for x in L) + "  Δ " + " ".join(f"{x:+6.1f}" for x in row["delta"])
-              + f"  RMS {row['rms']:.1f}  ({row['seconds']:.0f} s)", flush=True)
-    geometry, tilt = ma98_geometry(45.0), GammaTilt(s.tilt_shape.value, s.tilt_scale.value)
-    platelet = BeckmannBRDF(s.sigma.value, s.tau.value, n_medium=s.binder_index)
+              + f"  RMS {row['rms']:.1f}  ({row['seconds']:.0f} s)"
+              + ("; analytic hot spot " + " ".join(f"{x:6.1f}" for x in row["analytic_hot_spot_L_star"]) if "analytic_hot_spot_L_star" in row else ""),
+              flush=True)
     result["analytic"] = {}
     occlusion = {"analytic, independent occlusion": {}, "analytic, hot spot": {"hot_spot": HotSpot.for_sample(s)},
                  "analytic, exit path clear": {"exit_occlusion": False}}

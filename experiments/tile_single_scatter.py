@@ -1,6 +1,6 @@
 """Experiment: mirror single scattering tile by tile: tracer, the tile's own model, and the ensemble model.
 
-The scene of the tracer's thin-mirror tests (`tests/test_tracer.py`, `thin_mirror_scene`): a Boolean
+The scene of the tracer's thin-mirror tests (`tests/test_tracer_single_scatter.py`, `thin_mirror_scene`): a Boolean
 layer of 7360 thin mirror platelets (w = 1 µm, t = 0.02 µm, mean free depth 50 µm, Silver #1 tilt
 law) in a 40 × 40 × 230 µm tile under a flat coat of n = 1.5, 45° illumination, detectors at
 15°, 25°, 45° with 8° apertures, black side walls (`edges="absorb"`). For each of `--tiles`

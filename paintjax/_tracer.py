@@ -86,6 +86,7 @@ The lanes are split over all local devices with `shard_map`.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -982,6 +983,7 @@ def trace(
     target_se_lstar: float | None = None,
     max_rays: int | None = None,
     options: TracerOptions | None = None,
+    progress: Callable[[int, np.ndarray, float], None] | None = None,
 ) -> TraceResult:
     """Trace rays through a platelet basecoat under a flat clearcoat; five-angle reflectance and L*.
 
@@ -1005,6 +1007,8 @@ def trace(
             round at most quadruples the rays.
         max_rays: ceiling for `target_se_lstar` (default 64 × rays; rounded up per pass like `rays`).
         options: `TracerOptions`.
+        progress: called after every round as `progress(rays, L_star_se, seconds)` (rays traced so
+            far, the L* standard errors per detector, seconds since tracing began); None: silent.
 
     Returns:
         A `TraceResult`.
@@ -1075,9 +1079,11 @@ def trace(
             item[2] = state
             parts.append(_summarise(np.asarray(state[1], dtype=float), m, opt.batches))
         est, se, per_batch, ledger, N = _combine(parts, m)
+        _, Lse = lightness_with_se(est[:m], se[:m])
+        if progress is not None:
+            progress(int(N), np.asarray(Lse), time.perf_counter() - t0)
         if target_se_lstar is None:
             break
-        _, Lse = lightness_with_se(est[:m], se[:m])
         worst = float(np.max(Lse / target_se_lstar))
         if worst <= 1.0 or n_local >= limit_local:
             break

@@ -68,6 +68,9 @@ def test_readable_table(capsys):
         (["simulate", "--brdf", "mirror", "--brdf-method", "rotate"], "brdf_method"),
         (["simulate", "--brdf", "kirchhoff", "--correlation", "exponential"], "correlation"),
         (["simulate", "--rays", "0"], "rays"),
+        (["simulate", "--d50", "0"], "d50"),
+        (["simulate", "--platelet-thickness", "25"], "platelet_thickness"),
+        (["simulate", "--pvc", "0.45"], "pvc"),
         (["simulate", "--sample", "gold"], "unknown sample"),
     ],
 )

@@ -71,3 +71,19 @@ def test_simulate_json_contract_and_result_files(capsys, tmp_path):
     assert 16384 <= r["rays"] <= 16384 + 8 * jax.local_device_count()  # each pass rounds up
     assert np.all(np.diff(r["L_star"])[:3] < 0)  # lightness falls away from the specular direction (15° … 75°)
     assert sum(r["energy"].values()) == pytest.approx(1.0, abs=LEDGER_ROUNDING)
+
+
+def test_simulate_array_overrides_reach_the_generator():
+    """`--d50` scales the sample's width law (and the default tile) and `--platelet-thickness` sets t."""
+    from paintjax._commands.simulate import sample_array
+    from paintjax._microstructure import array_statistics
+    from paintjax._sizes import LogNormalSizes
+
+    a = sample_array("silver1", d50=8.0, platelet_thickness=0.5, pvc=0.05, seed=1)
+    w = np.asarray(a.widths)
+    assert a.thickness == 0.5
+    assert np.median(w) == pytest.approx(8.0, rel=0.05)  # log-normal, ~1300 draws: SE of the median ≈ 1.3 %
+    assert np.quantile(w, 0.9) / np.quantile(w, 0.1) == pytest.approx(30.0 / 8.0, rel=0.15)  # same spread as the sample's
+    expected_tile = np.ceil(10 * LogNormalSizes.from_quantiles(4.0, 8.0, 15.0).max_width)
+    assert a.tile == (expected_tile, expected_tile)
+    assert array_statistics(a)["pvc"] == pytest.approx(0.05, rel=0.05)

@@ -1,6 +1,5 @@
 """The parameter-estimation notebook runs end to end in its reduced-size mode (PAINTJAX_QUICK=1)."""
 
-import os
 from pathlib import Path
 
 import nbformat

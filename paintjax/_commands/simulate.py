@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import sys
 import time
 from importlib import resources
 
@@ -10,6 +11,7 @@ import numpy as np
 
 from ._common import add_json_argument, add_output_argument, print_json
 from .._cache import enable_compilation_cache
+from .._microstructure import MAX_PVC
 from .._profiles import CORRELATIONS
 
 BRDFS = ("wave", "mirror", "kirchhoff")
@@ -35,8 +37,13 @@ def register(sub) -> None:
     p.add_argument("--scale", type=float, help="tilt gamma scale [deg] (> 0); default: the sample's")
     p.add_argument("--sigma", type=float, help="platelet rms roughness σ [µm]; default: the sample's (0.051)")
     p.add_argument("--tau", type=float, help="platelet correlation length τ [µm]; default: the sample's (0.64)")
-    p.add_argument("--pvc", type=float, help="pigment volume concentration in (0, 0.5]; default: the sample's (0.20)")
+    p.add_argument("--pvc", type=float, help=f"pigment volume concentration in (0, {MAX_PVC}]; default: the sample's (0.20)")
     p.add_argument("--thickness", type=float, help="basecoat thickness h_b [µm]; default: the sample's (20)")
+    p.add_argument("--d50", type=float,
+                   help="median platelet width [µm] (> 0): the sample's log-normal width law scaled to this median (D10, D90 and "
+                   "the tile in proportion); default: the sample's (16, D10 ≈ 8, D90 ≈ 30; not measured)")
+    p.add_argument("--platelet-thickness", type=float,
+                   help="platelet thickness t [µm] (> 0, below the basecoat's); default: the sample's (1.0, the original study's value)")
     p.add_argument("--brdf", choices=BRDFS, default="wave",
                    help="platelet BRDF: wave (hybrid, wave-based table; default), mirror (smooth Al), kirchhoff (analytic Beckmann)")
     p.add_argument("--brdf-method", choices=BRDF_METHODS, default="abel",
@@ -67,8 +74,37 @@ def _source_digest(*modules: str) -> str:
     return h.hexdigest()[:16]
 
 
-def sample_array(sample: str, *, seed: int = 0, shape=None, scale=None, pvc=None, thickness=None):
-    """The platelet array of a reference sample (with overrides), cached on disk by content."""
+def _array_overrides(s, *, pvc=None, thickness=None, d50=None, platelet_thickness=None) -> dict:
+    """Validated `generate_platelet_array` keywords for the array overrides of sample `s`.
+
+    `thickness` is the basecoat's; `d50` rescales the sample's log-normal width law to that median
+    (same spread in ln w, so D10, D90 and the default tile scale with it); `platelet_thickness` is t.
+    """
+    from .._sizes import LogNormalSizes, positive_finite
+
+    out = {}
+    if pvc is not None:
+        if not 0.0 < positive_finite("pvc", pvc) <= MAX_PVC:
+            raise ValueError(f"pvc must lie in (0, {MAX_PVC}] (volume fraction, not percent), got {pvc!r}")
+        out["pvc"] = float(pvc)
+    if thickness is not None:
+        out["basecoat_thickness"] = positive_finite("thickness", thickness, "µm")
+    if d50 is not None:
+        d50 = positive_finite("d50", d50, "µm")
+        k = d50 / s.size_d50
+        out["sizes"] = LogNormalSizes.from_quantiles(k * s.size_d10, d50, k * s.size_d90)
+    if platelet_thickness is not None:
+        t = positive_finite("platelet_thickness", platelet_thickness, "µm")
+        h_b = out.get("basecoat_thickness", s.basecoat_thickness)
+        if t >= h_b:
+            raise ValueError(f"platelet_thickness must be below the basecoat thickness ({h_b:g} µm), got {platelet_thickness!r}")
+        out["thickness"] = t
+    return out
+
+
+def sample_array(sample: str, *, seed: int = 0, shape=None, scale=None, pvc=None, thickness=None, d50=None,
+                 platelet_thickness=None):
+    """The platelet array of a reference sample (with overrides, see `_array_overrides`), cached on disk by content."""
     from .._cache import cached_arrays
     from .._microstructure import PlateletArray, platelet_array_for_sample
     from .._samples import load_sample
@@ -76,16 +112,14 @@ def sample_array(sample: str, *, seed: int = 0, shape=None, scale=None, pvc=None
 
     s = load_sample(sample)
     tilt = GammaTilt(s.tilt_shape.value if shape is None else shape, s.tilt_scale.value if scale is None else scale)
-    overrides = {"tilt": tilt}
-    if pvc is not None:
-        overrides["pvc"] = pvc
-    if thickness is not None:
-        overrides["basecoat_thickness"] = thickness
+    overrides = {"tilt": tilt, **_array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)}
     inputs = {
         "sample": s.name, "seed": int(seed), "shape": float(tilt.shape), "scale": float(tilt.scale_deg),
         "pvc": None if pvc is None else float(pvc), "thickness": None if thickness is None else float(thickness),
         "generator": _source_digest("_microstructure.py", "_sizes.py", "_overlap.py", "_tilt.py"),
     }
+    # keys only when given, so the default arrays keep their cache entries
+    inputs.update({k: float(v) for k, v in (("d50", d50), ("platelet_thickness", platelet_thickness)) if v is not None})
 
     def build():
         a = platelet_array_for_sample(s.name, seed, **overrides)
@@ -149,6 +183,8 @@ def simulate(
     tau=None,
     pvc=None,
     thickness=None,
+    d50=None,
+    platelet_thickness=None,
     brdf: str = "wave",
     brdf_method: str = "abel",
     correlation: str = "gaussian",
@@ -169,7 +205,8 @@ def simulate(
     `spectral`: trace at the `SPECTRAL_NODES_NM` wavelengths (platelet BRDF at each, same array and
     seed) and combine them under D65 and the CIE 1964 10° observer (`_spectral`); the result then
     also holds "wavelengths_nm", "spectral_reflectance_factor", "XYZ", "Lab" and "Lab_se". Otherwise one
-    wavelength (the BRDF's default). `progress` prints a line per wavelength.
+    wavelength (the BRDF's default). `progress` prints a line to stderr after every round of rays
+    (rays so far, the worst L* standard error, seconds) and one per wavelength.
     """
     from .._grid import build_grid
     from .._instrument import STANDARD_ASPECULAR, ma98_geometry
@@ -182,6 +219,7 @@ def simulate(
     s = load_sample(sample)
     if rays is not None and int(rays) < 1:
         raise ValueError(f"rays must be a positive integer, got {rays!r}")
+    _array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)  # fail before any table is built
     n = s.binder_index
     sigma = s.sigma.value if sigma is None else sigma
     tau = s.tau.value if tau is None else tau
@@ -189,7 +227,8 @@ def simulate(
     platelets = [platelet_brdf(brdf, sigma=sigma, tau=tau, n=n, reflectance=reflectance, wavelength_um=w, method=brdf_method,
                                correlation=correlation)
                  for w in wavelengths_um]
-    array = sample_array(s.name, seed=seed, shape=shape, scale=scale, pvc=pvc, thickness=thickness)
+    array = sample_array(s.name, seed=seed, shape=shape, scale=scale, pvc=pvc, thickness=thickness, d50=d50,
+                         platelet_thickness=platelet_thickness)
     grid = build_grid(array)
     aperture = MIRROR_APERTURE_DEG if platelets[0].is_delta else 0.0
     geometry = ma98_geometry(45.0, STANDARD_ASPECULAR, detector_aperture_deg=aperture)
@@ -201,9 +240,15 @@ def simulate(
         kwargs.update(rays=int(rays))
     results = []
     for w, platelet in zip(wavelengths_um, platelets):
-        results.append(trace(array, geometry, platelet, **kwargs))
+        label = s.name + (f" {1000 * w:.0f} nm" if spectral else "")
+
+        def report(n_rays, Lse, seconds, label=label):
+            goal = f" (target {target_se:g})" if rays is None else ""
+            print(f"  {label}: {n_rays:,} rays, worst L* SE {float(np.max(Lse)):.2f}{goal}, {seconds:.1f} s", file=sys.stderr, flush=True)
+
+        results.append(trace(array, geometry, platelet, progress=report if progress else None, **kwargs))
         if spectral and progress:
-            print(f"  {s.name} {1000 * w:.0f} nm: L* {np.round(results[-1].L_star, 1).tolist()}", flush=True)
+            print(f"  {label}: L* {np.round(results[-1].L_star, 1).tolist()}", file=sys.stderr, flush=True)
     res, spectrum = combine_spectral(results, SPECTRAL_NODES_NM) if spectral else (results[0], {})
     out = res.to_dict()
     out.update(spectrum)
@@ -221,6 +266,8 @@ def simulate(
     out["flop_index"] = float(flop_index(L[0], L[2], L[4]))
     out["measured_L_star"] = np.asarray(s.L_star)
     out["platelets"] = int(np.asarray(array.widths).shape[0])
+    out["platelet_median_width_um"] = float(np.median(np.asarray(array.widths)))
+    out["platelet_thickness_um"] = float(array.thickness)
     out["tile_um"] = list(array.tile)
     return out
 
@@ -257,20 +304,20 @@ def run(args) -> int:
     enable_compilation_cache()
     r = simulate(
         args.sample, shape=args.shape, scale=args.scale, sigma=args.sigma, tau=args.tau, pvc=args.pvc,
-        thickness=args.thickness, brdf=args.brdf, brdf_method=args.brdf_method, correlation=args.correlation,
+        thickness=args.thickness, d50=args.d50, platelet_thickness=args.platelet_thickness, brdf=args.brdf, brdf_method=args.brdf_method, correlation=args.correlation,
         reflectance=args.reflectance, primer_albedo=args.primer_albedo,
         waviness=args.waviness, rays=args.rays, seed=args.seed, single_scatter=args.single_scatter, spectral=args.spectral,
-        progress=args.spectral and not args.json,
+        progress=True,
     )
     r["seed"] = args.seed
-    r["inputs"] = {k: getattr(args, k) for k in ("shape", "scale", "sigma", "tau", "pvc", "thickness", "brdf", "brdf_method", "correlation", "reflectance",
+    r["inputs"] = {k: getattr(args, k) for k in ("shape", "scale", "sigma", "tau", "pvc", "thickness", "d50", "platelet_thickness", "brdf", "brdf_method", "correlation", "reflectance",
                                                  "primer_albedo", "waviness", "rays", "seed", "single_scatter", "spectral")}
     atomic_write_json(f"{args.out}/simulate.json", r)
     png = _plot(r, args.out)
     if args.json:
         print_json({k: r[k] for k in _JSON_KEYS + (_SPECTRAL_KEYS if args.spectral else ())})
         return 0
-    print(f"Ray tracer, {r['sample']}: {r['brdf']}{' (in-plane lobe rotated)' if r['brdf_method'] == 'rotate' else ''}{' (exponential profiles)' if r['correlation'] == 'exponential' else ''} platelets, {r['platelets']} in a {r['tile_um'][0]:.0f} × {r['tile_um'][1]:.0f} µm tile"
+    print(f"Ray tracer, {r['sample']}: {r['brdf']}{' (in-plane lobe rotated)' if r['brdf_method'] == 'rotate' else ''}{' (exponential profiles)' if r['correlation'] == 'exponential' else ''} platelets, {r['platelets']} (median width {r['platelet_median_width_um']:.1f} µm, {r['platelet_thickness_um']:g} µm thick) in a {r['tile_um'][0]:.0f} × {r['tile_um'][1]:.0f} µm tile"
           f"{', detector aperture %.1f°' % r['aperture_deg'] if r['aperture_deg'] else ''}"
           f"{', single scattering' if args.single_scatter else ''}"
           f"{', spectral (D65, CIE 1964 10°; R factor = Y/100)' if args.spectral else ''}")

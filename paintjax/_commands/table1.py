@@ -105,13 +105,14 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
         hybrid = None
         if available:
             try:
-                hybrid = simulate(name, brdf="wave", seed=seed, target_se=target_se, max_rays=max_rays, waviness=waviness, spectral=spectral)
+                hybrid = simulate(name, brdf="wave", seed=seed, target_se=target_se, max_rays=max_rays, waviness=waviness, spectral=spectral,
+                                  progress=progress)
             except (ValueError, ImportError, OSError) as err:
                 out["notes"].append(f"hybrid column unavailable for {name}: {err}")
         if hybrid is not None:
             report(f"{name}: hybrid done, {hybrid['rays']} rays, largest SE {float(np.max(hybrid['L_star_se'])):.2f} L*, "
                    f"{time.perf_counter() - t0:.0f} s; mirror column ({mirror_rays} rays) …")
-        mirror = simulate(name, brdf="mirror", seed=seed, rays=mirror_rays, waviness=waviness)
+        mirror = simulate(name, brdf="mirror", seed=seed, rays=mirror_rays, waviness=waviness, progress=progress)
         geo = ma98_geometry(45.0)
         tilt = GammaTilt(s.tilt_shape.value, s.tilt_scale.value)
         analytic = np.asarray(reflectance_factor_to_lightness(microfacet_reflectance_factor(
