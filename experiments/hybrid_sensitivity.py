@@ -35,10 +35,11 @@ narrower than the mean free path), correlated over the sample's platelet widths 
 single-scatter row against these shows how strongly the 16 µm platelets correlate the entry and
 exit paths at the measured PVC, where the mean free depth is t/PVC = 5 µm.
 
-Writes experiments/output/hybrid_sensitivity/{summary.json, sensitivity.png} (atomic). Each row
+Writes experiments/output/hybrid_sensitivity/{summary.json, sensitivity.png} (atomic; Silver #2 under
+hybrid_sensitivity_silver2/, or `--out`). Each row
 gives L*, its standard error and the difference to the measurement.
 
-Run: python experiments/hybrid_sensitivity.py [--sample silver1] [--rays 262144]
+Run: python experiments/hybrid_sensitivity.py [--sample silver1] [--rays 262144] [--out DIR]
 """
 
 from __future__ import annotations
@@ -119,7 +120,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sample", default="silver1", choices=("silver1", "silver2"))
     ap.add_argument("--rays", type=int, default=262144)
+    ap.add_argument("--out", type=Path, help="output folder (default experiments/output/hybrid_sensitivity, with a _silver2 "
+                    "suffix for Silver #2)")
     args = ap.parse_args(argv)
+    out = args.out or OUT.with_name(OUT.name + ("" if args.sample == "silver1" else f"_{args.sample}"))
     enable_compilation_cache()
     s = load_sample(args.sample)
     measured = np.asarray(s.L_star)
@@ -151,9 +155,9 @@ def main(argv=None) -> int:
             geometry, tilt, n=s.binder_index, platelet=platelet, **kw)))
         result["analytic"][name] = {"L_star": L, "delta": L - measured, "rms": float(np.sqrt(np.mean((L - measured) ** 2)))}
         print(f"{name:>32}: L* " + " ".join(f"{x:6.1f}" for x in L) + "  Δ " + " ".join(f"{x:+6.1f}" for x in L - measured))
-    OUT.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(OUT / "summary.json", result)
-    print(f"plot: {plot(result, OUT / 'sensitivity.png')}; data: {OUT / 'summary.json'}")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "summary.json", result)
+    print(f"plot: {plot(result, out / 'sensitivity.png')}; data: {out / 'summary.json'}")
     return 0
 
 

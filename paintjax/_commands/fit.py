@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import time
 
-
 from .._cache import enable_compilation_cache
 from ._common import add_json_argument, print_json
 
