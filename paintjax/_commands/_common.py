@@ -19,3 +19,41 @@ def add_output_argument(parser, default: str) -> None:
 
 def add_json_argument(parser) -> None:
     parser.add_argument("--json", action="store_true", help="print machine-readable JSON to stdout instead of a table")
+
+
+def add_array_size_arguments(parser) -> None:
+    """`--d50` and `--platelet-thickness`: the platelet size overrides of `array_overrides`."""
+    parser.add_argument("--d50", type=float,
+                        help="median platelet width [µm] (> 0): the sample's log-normal width law scaled to this median (D10, D90 and "
+                        "the default tile in proportion); default: the sample's (16, D10 ≈ 8, D90 ≈ 30; not measured)")
+    parser.add_argument("--platelet-thickness", type=float,
+                        help="platelet thickness t [µm] (> 0, below the basecoat's); default: the sample's (1.0, the original study's value)")
+
+
+def array_overrides(s, *, pvc=None, thickness=None, d50=None, platelet_thickness=None) -> dict:
+    """Validated `generate_platelet_array` keywords for the array overrides of sample `s`.
+
+    `thickness` is the basecoat's; `d50` rescales the sample's log-normal width law to that median
+    (same spread in ln w, so D10, D90 and the default tile scale with it); `platelet_thickness` is t.
+    """
+    from .._microstructure import MAX_PVC
+    from .._sizes import LogNormalSizes, positive_finite
+
+    out = {}
+    if pvc is not None:
+        if not 0.0 < positive_finite("pvc", pvc) <= MAX_PVC:
+            raise ValueError(f"pvc must lie in (0, {MAX_PVC}] (volume fraction, not percent), got {pvc!r}")
+        out["pvc"] = float(pvc)
+    if thickness is not None:
+        out["basecoat_thickness"] = positive_finite("thickness", thickness, "µm")
+    if d50 is not None:
+        d50 = positive_finite("d50", d50, "µm")
+        k = d50 / s.size_d50
+        out["sizes"] = LogNormalSizes.from_quantiles(k * s.size_d10, d50, k * s.size_d90)
+    if platelet_thickness is not None:
+        t = positive_finite("platelet_thickness", platelet_thickness, "µm")
+        h_b = out.get("basecoat_thickness", s.basecoat_thickness)
+        if t >= h_b:
+            raise ValueError(f"platelet_thickness must be below the basecoat thickness ({h_b:g} µm), got {platelet_thickness!r}")
+        out["thickness"] = t
+    return out

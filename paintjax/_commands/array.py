@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_json_argument, add_output_argument, print_json
+from ._common import add_array_size_arguments, add_json_argument, add_output_argument, array_overrides, print_json
 
 JSON_KEYS = ("count", "pvc", "overlaps_exact", "overlaps_midplane", "tilt_ks", "seconds")
 
@@ -24,6 +24,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed, integer ≥ 0 (default 0)")
     p.add_argument("--tile", type=float, help="tile side [µm] (default 10 × the largest platelet width)")
     p.add_argument("--pvc", type=float, help="pigment volume concentration in (0, 0.4]; default: the sample's")
+    add_array_size_arguments(p)
     p.add_argument("--overlap-test", default="sat", choices=("sat", "midplane", "none"), help="overlap test used for removal (default sat)")
     p.add_argument("--max-attempts", type=int, default=1000, help="re-placements per platelet (default 1000)")
     p.add_argument("--no-plots", action="store_true", help="do not write the pictures")
@@ -32,17 +33,20 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def compute(sample="silver1", seed=0, tile=None, pvc=None, overlap_test="sat", max_attempts=1000) -> tuple:
-    """Build the array; returns (array, tilt law, statistics dict incl. the JSON keys, log)."""
+def compute(sample="silver1", seed=0, tile=None, pvc=None, overlap_test="sat", max_attempts=1000, d50=None,
+            platelet_thickness=None) -> tuple:
+    """Build the array; returns (array, tilt law, statistics dict incl. the JSON keys, log).
+
+    `pvc`, `d50` and `platelet_thickness` override the sample's (`_common.array_overrides`).
+    """
     from .. import GammaTilt, load_sample
     from .._microstructure import array_statistics, platelet_array_for_sample
 
     s = load_sample(sample)
-    overrides = dict(overlap_test=overlap_test, max_attempts=max_attempts)
+    overrides = dict(overlap_test=overlap_test, max_attempts=max_attempts,
+                     **array_overrides(s, pvc=pvc, d50=d50, platelet_thickness=platelet_thickness))
     if tile is not None:
         overrides["tile"] = tile
-    if pvc is not None:
-        overrides["pvc"] = pvc
     array, log = platelet_array_for_sample(s.name, seed, return_log=True, **overrides)
     tilt = GammaTilt(s.tilt_shape.value, s.tilt_scale.value)
     stats = array_statistics(array, tilt)
@@ -121,7 +125,8 @@ def plot_tilt_histogram(array, tilt, path, ks: tuple[float, float] | None = None
 
 
 def run(args) -> int:
-    array, tilt, stats = compute(args.sample, args.seed, args.tile, args.pvc, args.overlap_test, args.max_attempts)
+    array, tilt, stats = compute(args.sample, args.seed, args.tile, args.pvc, args.overlap_test, args.max_attempts,
+                                 d50=args.d50, platelet_thickness=args.platelet_thickness)
     paths = []
     if not args.no_plots:
         out = Path(args.out)
@@ -133,7 +138,7 @@ def run(args) -> int:
         return 0
     log = stats["log"]
     print(f"Platelet array of {stats['sample']} (seed {args.seed}), tile {stats['tile'][0]:.0f} × {stats['tile'][1]:.0f} µm, basecoat {stats['basecoat_thickness']:.0f} µm")
-    print(f"  platelets              {stats['count']}")
+    print(f"  platelets              {stats['count']} ({array.thickness:g} µm thick)")
     print(f"  PVC                    {100 * stats['pvc']:.3f} % (target {100 * stats['pvc_target']:.1f} %)")
     print(f"  widths D10/D50/D90     {stats['width_d10']:.1f} / {stats['width_d50']:.1f} / {stats['width_d90']:.1f} µm")
     print(f"  mean tilt              {stats['tilt_mean_deg']:.2f}°  (KS D = {stats['tilt_ks']:.4f}, p = {stats['tilt_ks_pvalue']:.3f})")

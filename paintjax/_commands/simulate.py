@@ -9,7 +9,7 @@ from importlib import resources
 
 import numpy as np
 
-from ._common import add_json_argument, add_output_argument, print_json
+from ._common import add_array_size_arguments, add_json_argument, add_output_argument, array_overrides, print_json
 from .._cache import enable_compilation_cache
 from .._microstructure import MAX_PVC
 from .._profiles import CORRELATIONS
@@ -39,11 +39,7 @@ def register(sub) -> None:
     p.add_argument("--tau", type=float, help="platelet correlation length τ [µm]; default: the sample's (0.64)")
     p.add_argument("--pvc", type=float, help=f"pigment volume concentration in (0, {MAX_PVC}]; default: the sample's (0.20)")
     p.add_argument("--thickness", type=float, help="basecoat thickness h_b [µm]; default: the sample's (20)")
-    p.add_argument("--d50", type=float,
-                   help="median platelet width [µm] (> 0): the sample's log-normal width law scaled to this median (D10, D90 and "
-                   "the tile in proportion); default: the sample's (16, D10 ≈ 8, D90 ≈ 30; not measured)")
-    p.add_argument("--platelet-thickness", type=float,
-                   help="platelet thickness t [µm] (> 0, below the basecoat's); default: the sample's (1.0, the original study's value)")
+    add_array_size_arguments(p)
     p.add_argument("--brdf", choices=BRDFS, default="wave",
                    help="platelet BRDF: wave (hybrid, wave-based table; default), mirror (smooth Al), kirchhoff (analytic Beckmann)")
     p.add_argument("--brdf-method", choices=BRDF_METHODS, default="abel",
@@ -74,37 +70,9 @@ def _source_digest(*modules: str) -> str:
     return h.hexdigest()[:16]
 
 
-def _array_overrides(s, *, pvc=None, thickness=None, d50=None, platelet_thickness=None) -> dict:
-    """Validated `generate_platelet_array` keywords for the array overrides of sample `s`.
-
-    `thickness` is the basecoat's; `d50` rescales the sample's log-normal width law to that median
-    (same spread in ln w, so D10, D90 and the default tile scale with it); `platelet_thickness` is t.
-    """
-    from .._sizes import LogNormalSizes, positive_finite
-
-    out = {}
-    if pvc is not None:
-        if not 0.0 < positive_finite("pvc", pvc) <= MAX_PVC:
-            raise ValueError(f"pvc must lie in (0, {MAX_PVC}] (volume fraction, not percent), got {pvc!r}")
-        out["pvc"] = float(pvc)
-    if thickness is not None:
-        out["basecoat_thickness"] = positive_finite("thickness", thickness, "µm")
-    if d50 is not None:
-        d50 = positive_finite("d50", d50, "µm")
-        k = d50 / s.size_d50
-        out["sizes"] = LogNormalSizes.from_quantiles(k * s.size_d10, d50, k * s.size_d90)
-    if platelet_thickness is not None:
-        t = positive_finite("platelet_thickness", platelet_thickness, "µm")
-        h_b = out.get("basecoat_thickness", s.basecoat_thickness)
-        if t >= h_b:
-            raise ValueError(f"platelet_thickness must be below the basecoat thickness ({h_b:g} µm), got {platelet_thickness!r}")
-        out["thickness"] = t
-    return out
-
-
 def sample_array(sample: str, *, seed: int = 0, shape=None, scale=None, pvc=None, thickness=None, d50=None,
                  platelet_thickness=None):
-    """The platelet array of a reference sample (with overrides, see `_array_overrides`), cached on disk by content."""
+    """The platelet array of a reference sample (with overrides, see `_common.array_overrides`), cached on disk by content."""
     from .._cache import cached_arrays
     from .._microstructure import PlateletArray, platelet_array_for_sample
     from .._samples import load_sample
@@ -112,7 +80,7 @@ def sample_array(sample: str, *, seed: int = 0, shape=None, scale=None, pvc=None
 
     s = load_sample(sample)
     tilt = GammaTilt(s.tilt_shape.value if shape is None else shape, s.tilt_scale.value if scale is None else scale)
-    overrides = {"tilt": tilt, **_array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)}
+    overrides = {"tilt": tilt, **array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)}
     inputs = {
         "sample": s.name, "seed": int(seed), "shape": float(tilt.shape), "scale": float(tilt.scale_deg),
         "pvc": None if pvc is None else float(pvc), "thickness": None if thickness is None else float(thickness),
@@ -219,7 +187,7 @@ def simulate(
     s = load_sample(sample)
     if rays is not None and int(rays) < 1:
         raise ValueError(f"rays must be a positive integer, got {rays!r}")
-    _array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)  # fail before any table is built
+    array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)  # fail before any table is built
     n = s.binder_index
     sigma = s.sigma.value if sigma is None else sigma
     tau = s.tau.value if tau is None else tau
