@@ -57,6 +57,7 @@ import numpy as np  # noqa: E402
 from paintjax import GammaTilt, HotSpot, load_sample, ma98_geometry, reflectance_factor_to_lightness  # noqa: E402
 from paintjax._beckmann import BeckmannBRDF  # noqa: E402
 from paintjax._cache import enable_compilation_cache  # noqa: E402
+from paintjax._commands._common import array_overrides  # noqa: E402
 from paintjax._commands.simulate import simulate  # noqa: E402
 from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
 from paintjax._microfacet import microfacet_reflectance_factor  # noqa: E402
@@ -137,9 +138,9 @@ def main(argv=None) -> int:
         row = {"L_star": L, "L_star_se": np.asarray(r["L_star_se"]), "delta": L - measured,
                "rms": float(np.sqrt(np.mean((L - measured) ** 2))), "energy": r["energy"], "seconds": time.perf_counter() - t0}
         if "d50" in kw or "platelet_thickness" in kw:  # the analytic hot-spot model of the same layer
-            k = kw.get("d50", s.size_d50) / s.size_d50
-            hot_spot = HotSpot.for_layer((k * s.size_d10, k * s.size_d50, k * s.size_d90),
-                                         thickness=kw.get("platelet_thickness", s.platelet_thickness), pvc=s.pvc.value)
+            layer = array_overrides(s, d50=kw.get("d50"), platelet_thickness=kw.get("platelet_thickness"))
+            hot_spot = HotSpot.for_layer(layer.get("sizes", (s.size_d10, s.size_d50, s.size_d90)),
+                                         thickness=layer.get("thickness", s.platelet_thickness), pvc=s.pvc.value)
             row["analytic_hot_spot_L_star"] = np.asarray(reflectance_factor_to_lightness(microfacet_reflectance_factor(
                 geometry, tilt, n=s.binder_index, platelet=platelet, hot_spot=hot_spot)))
         result["variants"][name] = row

@@ -71,6 +71,8 @@ def test_readable_table(capsys):
         (["simulate", "--d50", "0"], "d50"),
         (["simulate", "--platelet-thickness", "25"], "platelet_thickness"),
         (["simulate", "--pvc", "0.45"], "pvc"),
+        (["simulate", "--d50", "80"], "d50"),
+        (["simulate", "--thickness", "0.8"], "thickness"),
         (["array", "--platelet-thickness", "0", "--no-plots"], "platelet_thickness"),
         (["simulate", "--sample", "gold"], "unknown sample"),
     ],

@@ -1,5 +1,5 @@
 """The hot spot (paintjax._hot_spot): overlap fraction, depth integral, limits, and its use in the
-analytic single-scatter model. The tracer comparison (wide Poisson platelets) is in test_tracer.py."""
+analytic single-scatter model. The tracer comparison (wide Poisson platelets) is in test_tracer_single_scatter.py."""
 
 from __future__ import annotations
 

@@ -30,11 +30,17 @@ def add_array_size_arguments(parser) -> None:
                         help="platelet thickness t [µm] (> 0, below the basecoat's); default: the sample's (1.0, the original study's value)")
 
 
+#: Allowed median platelet width for `--d50` [µm]: the reference samples' platelets are 10–30 µm
+#: across; beyond 50 µm the widest platelets (≈ 4.7 × D50) no longer fit a 20 µm film at their tilts.
+D50_RANGE_UM = (1.0, 50.0)
+
+
 def array_overrides(s, *, pvc=None, thickness=None, d50=None, platelet_thickness=None) -> dict:
     """Validated `generate_platelet_array` keywords for the array overrides of sample `s`.
 
     `thickness` is the basecoat's; `d50` rescales the sample's log-normal width law to that median
-    (same spread in ln w, so D10, D90 and the default tile scale with it); `platelet_thickness` is t.
+    (same spread in ln w, so D10, D90 and the default tile scale with it; `D50_RANGE_UM`);
+    `platelet_thickness` is t, which must stay below the basecoat thickness (given or the sample's).
     """
     from .._microstructure import MAX_PVC
     from .._sizes import LogNormalSizes, positive_finite
@@ -47,13 +53,16 @@ def array_overrides(s, *, pvc=None, thickness=None, d50=None, platelet_thickness
     if thickness is not None:
         out["basecoat_thickness"] = positive_finite("thickness", thickness, "µm")
     if d50 is not None:
-        d50 = positive_finite("d50", d50, "µm")
-        k = d50 / s.size_d50
-        out["sizes"] = LogNormalSizes.from_quantiles(k * s.size_d10, d50, k * s.size_d90)
+        lo, hi = D50_RANGE_UM
+        if not lo <= positive_finite("d50", d50, "µm") <= hi:
+            raise ValueError(f"d50 (median platelet width) must lie in [{lo:g}, {hi:g}] µm, got {d50!r}")
+        k = float(d50) / s.size_d50
+        out["sizes"] = LogNormalSizes.from_quantiles(k * s.size_d10, float(d50), k * s.size_d90)
     if platelet_thickness is not None:
-        t = positive_finite("platelet_thickness", platelet_thickness, "µm")
-        h_b = out.get("basecoat_thickness", s.basecoat_thickness)
-        if t >= h_b:
-            raise ValueError(f"platelet_thickness must be below the basecoat thickness ({h_b:g} µm), got {platelet_thickness!r}")
-        out["thickness"] = t
+        out["thickness"] = positive_finite("platelet_thickness", platelet_thickness, "µm")
+    t = out.get("thickness", s.platelet_thickness)
+    h_b = out.get("basecoat_thickness", s.basecoat_thickness)
+    if t >= h_b:
+        name = "platelet_thickness" if platelet_thickness is not None else "thickness"
+        raise ValueError(f"{name}: the platelets (t = {t:g} µm) must be thinner than the basecoat (thickness {h_b:g} µm)")
     return out

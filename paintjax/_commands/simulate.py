@@ -86,8 +86,12 @@ def sample_array(sample: str, *, seed: int = 0, shape=None, scale=None, pvc=None
         "pvc": None if pvc is None else float(pvc), "thickness": None if thickness is None else float(thickness),
         "generator": _source_digest("_microstructure.py", "_sizes.py", "_overlap.py", "_tilt.py"),
     }
-    # keys only when given, so the default arrays keep their cache entries
-    inputs.update({k: float(v) for k, v in (("d50", d50), ("platelet_thickness", platelet_thickness)) if v is not None})
+    # keys only when given, so the default arrays keep their cache entries; the size law by its parameters
+    if "sizes" in overrides:
+        law = overrides["sizes"]
+        inputs["sizes"] = [law.d50, law.sigma, law.truncation]
+    if platelet_thickness is not None:
+        inputs["platelet_thickness"] = overrides["thickness"]
 
     def build():
         a = platelet_array_for_sample(s.name, seed, **overrides)
@@ -208,7 +212,7 @@ def simulate(
         kwargs.update(rays=int(rays))
     results = []
     for w, platelet in zip(wavelengths_um, platelets):
-        label = s.name + (f" {1000 * w:.0f} nm" if spectral else "")
+        label = f"{s.name} {brdf}" + (f" {1000 * w:.0f} nm" if spectral else "")
 
         def report(n_rays, Lse, seconds, label=label):
             goal = f" (target {target_se:g})" if rays is None else ""

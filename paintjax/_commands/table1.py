@@ -69,7 +69,8 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
             waviness: float = 0.0, spectral: bool = False, progress: bool = False) -> dict:
     """All columns for both samples (plain dict; `None` where a column is unavailable).
 
-    `progress` prints a line per column to stderr as it finishes (stdout stays the table or JSON).
+    `progress` prints to stderr a line per column as it starts and finishes and, from `simulate`, one
+    per round of tracer rays (stdout stays the table or JSON).
     """
     from .._brdf import MirrorBRDF
     from .._hot_spot import HotSpot
