@@ -20,7 +20,7 @@ demo: $(STAMP)
 	$(BIN)/paintjax demo
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -n 2 --dist loadfile -q --durations=12
+	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder -q --durations=12
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
