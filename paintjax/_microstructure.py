@@ -234,6 +234,17 @@ def _draw_widths(rng, sizes: SizeDistribution, target_volume: float, thickness: 
     raise ValueError("pvc: could not reach the target volume")  # pragma: no cover
 
 
+def check_pvc(pvc) -> float:
+    """`pvc` as a float, or a ValueError unless it is a volume fraction in (0, `MAX_PVC`]."""
+    try:
+        pvc_f = float(pvc)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"pvc must be a number in (0, {MAX_PVC}], got {pvc!r}") from err
+    if not (math.isfinite(pvc_f) and 0 < pvc_f <= MAX_PVC):
+        raise ValueError(f"pvc must lie in (0, {MAX_PVC}] (volume fraction, not percent), got {pvc!r}")
+    return pvc_f
+
+
 def generate_platelet_array(
     key_or_seed,
     *,
@@ -276,12 +287,7 @@ def generate_platelet_array(
     t0 = time.perf_counter()
     tilt = _as_tilt(tilt)
     sizes = as_size_distribution(sizes)
-    try:
-        pvc_f = float(pvc)
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"pvc must be a number in (0, {MAX_PVC}], got {pvc!r}") from err
-    if not (math.isfinite(pvc_f) and 0 < pvc_f <= MAX_PVC):
-        raise ValueError(f"pvc must lie in (0, {MAX_PVC}] (volume fraction, not percent), got {pvc!r}")
+    pvc_f = check_pvc(pvc)
     t = positive_finite("thickness", thickness, "µm")
     h_b = positive_finite("basecoat_thickness", basecoat_thickness, "µm")
     if h_b <= t:

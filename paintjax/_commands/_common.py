@@ -21,10 +21,13 @@ def add_json_argument(parser) -> None:
     parser.add_argument("--json", action="store_true", help="print machine-readable JSON to stdout instead of a table")
 
 
-def add_array_size_arguments(parser) -> None:
-    """`--d50` and `--platelet-thickness`: the platelet size overrides of `array_overrides`."""
+def add_array_arguments(parser) -> None:
+    """`--pvc`, `--d50` and `--platelet-thickness`: the platelet overrides of `array_overrides`."""
+    from .._microstructure import MAX_PVC
+
+    parser.add_argument("--pvc", type=float, help=f"pigment volume concentration in (0, {MAX_PVC}]; default: the sample's (0.20)")
     parser.add_argument("--d50", type=float,
-                        help="median platelet width [µm] (> 0): the sample's log-normal width law scaled to this median (D10, D90 and "
+                        help=f"median platelet width [µm] in [{D50_RANGE_UM[0]:g}, {D50_RANGE_UM[1]:g}]: the sample's log-normal width law scaled to this median (D10, D90 and "
                         "the default tile in proportion); default: the sample's (16, D10 ≈ 8, D90 ≈ 30; not measured)")
     parser.add_argument("--platelet-thickness", type=float,
                         help="platelet thickness t [µm] (> 0, below the basecoat's); default: the sample's (1.0, the original study's value)")
@@ -42,14 +45,12 @@ def array_overrides(s, *, pvc=None, thickness=None, d50=None, platelet_thickness
     (same spread in ln w, so D10, D90 and the default tile scale with it; `D50_RANGE_UM`);
     `platelet_thickness` is t, which must stay below the basecoat thickness (given or the sample's).
     """
-    from .._microstructure import MAX_PVC
+    from .._microstructure import check_pvc
     from .._sizes import LogNormalSizes, positive_finite
 
     out = {}
     if pvc is not None:
-        if not 0.0 < positive_finite("pvc", pvc) <= MAX_PVC:
-            raise ValueError(f"pvc must lie in (0, {MAX_PVC}] (volume fraction, not percent), got {pvc!r}")
-        out["pvc"] = float(pvc)
+        out["pvc"] = check_pvc(pvc)
     if thickness is not None:
         out["basecoat_thickness"] = positive_finite("thickness", thickness, "µm")
     if d50 is not None:

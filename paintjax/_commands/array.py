@@ -6,8 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._microstructure import MAX_PVC
-from ._common import add_array_size_arguments, add_json_argument, add_output_argument, array_overrides, print_json
+from ._common import add_array_arguments, add_json_argument, add_output_argument, array_overrides, print_json
 
 JSON_KEYS = ("count", "pvc", "overlaps_exact", "overlaps_midplane", "tilt_ks", "seconds")
 
@@ -24,8 +23,7 @@ def register(sub) -> None:
     p.add_argument("--sample", default="silver1", help="reference sample: silver1 or silver2 (default silver1)")
     p.add_argument("--seed", type=int, default=0, help="random seed, integer ≥ 0 (default 0)")
     p.add_argument("--tile", type=float, help="tile side [µm] (default 10 × the largest platelet width)")
-    p.add_argument("--pvc", type=float, help=f"pigment volume concentration in (0, {MAX_PVC}]; default: the sample's")
-    add_array_size_arguments(p)
+    add_array_arguments(p)
     p.add_argument("--overlap-test", default="sat", choices=("sat", "midplane", "none"), help="overlap test used for removal (default sat)")
     p.add_argument("--max-attempts", type=int, default=1000, help="re-placements per platelet (default 1000)")
     p.add_argument("--no-plots", action="store_true", help="do not write the pictures")

@@ -9,9 +9,8 @@ from importlib import resources
 
 import numpy as np
 
-from ._common import add_array_size_arguments, add_json_argument, add_output_argument, array_overrides, print_json
+from ._common import add_array_arguments, add_json_argument, add_output_argument, array_overrides, print_json
 from .._cache import enable_compilation_cache
-from .._microstructure import MAX_PVC
 from .._profiles import CORRELATIONS
 
 BRDFS = ("wave", "mirror", "kirchhoff")
@@ -37,9 +36,8 @@ def register(sub) -> None:
     p.add_argument("--scale", type=float, help="tilt gamma scale [deg] (> 0); default: the sample's")
     p.add_argument("--sigma", type=float, help="platelet rms roughness σ [µm]; default: the sample's (0.051)")
     p.add_argument("--tau", type=float, help="platelet correlation length τ [µm]; default: the sample's (0.64)")
-    p.add_argument("--pvc", type=float, help=f"pigment volume concentration in (0, {MAX_PVC}]; default: the sample's (0.20)")
     p.add_argument("--thickness", type=float, help="basecoat thickness h_b [µm]; default: the sample's (20)")
-    add_array_size_arguments(p)
+    add_array_arguments(p)
     p.add_argument("--brdf", choices=BRDFS, default="wave",
                    help="platelet BRDF: wave (hybrid, wave-based table; default), mirror (smooth Al), kirchhoff (analytic Beckmann)")
     p.add_argument("--brdf-method", choices=BRDF_METHODS, default="abel",
