@@ -1079,7 +1079,7 @@ def trace(
             item[2] = state
             parts.append(_summarise(np.asarray(state[1], dtype=float), m, opt.batches))
         est, se, per_batch, ledger, N = _combine(parts, m)
-        _, Lse = lightness_with_se(est[:m], se[:m])
+        L, Lse = lightness_with_se(est[:m], se[:m])
         if progress is not None:
             progress(int(N), np.asarray(Lse), time.perf_counter() - t0)
         if target_se_lstar is None:
@@ -1092,8 +1092,7 @@ def trace(
         grow = int(np.ceil(n_local * min(worst**2 * 1.1 - 1.0, _MAX_GROWTH - 1.0)))
         n_local = min(limit_local, n_local + max(grow, opt.lanes))
     seconds = time.perf_counter() - t0
-    R, Rse = est[:m], se[:m]
-    L, Lse = lightness_with_se(R, Rse)
+    R, Rse = est[:m], se[:m]  # L, Lse: the last round's
     return TraceResult(
         aspecular_deg=np.asarray(geometry.aspecular_deg, dtype=float),
         reflectance_factor=R,
