@@ -97,9 +97,8 @@ def matrices(prof):
     return out
 
 
-def baseline_one(x, h, dh, d2h, dx, inc_rad, per_incidence=True):
-    """Straightforward scipy solver (impedance, TE and TM) for one profile: returns energy (2, I)."""
-    n = x.size
+def _baseline_system(x, h, dh, d2h, dx, inc_rad):
+    """The scipy baseline's operators (first-order self terms), incident field and power for one profile."""
     X, Y = x[:, None] - x[None, :], h[:, None] - h[None, :]
     R = np.hypot(X, Y)
     np.fill_diagonal(R, 1.0)
@@ -109,21 +108,31 @@ def baseline_one(x, h, dh, d2h, dx, inc_rad, per_incidence=True):
     np.fill_diagonal(S, 0.25j * dx * (1 + 2j / np.pi * np.log(1.78107 * K * dx * jac / (4 * np.e))))
     D = 0.25j * K * dx * h1 * (Y - dh[None, :] * X) / R
     np.fill_diagonal(D, dx * d2h / (4 * np.pi * jac**2))
-    g = (n * dx) / 4
+    g = (x.size * dx) / 4
     rhs = np.asarray(incident_field(jnp.asarray(x), jnp.asarray(h), jnp.asarray(inc_rad), K, g))
     p_inc = np.asarray(incident_power(jnp.asarray(inc_rad), K, g))
-    tq, wq = np.polynomial.legendre.leggauss(quadrature_points(K, n * dx))
-    th = tq * np.pi / 2
+    return S, D, jac, rhs, p_inc
+
+
+def _baseline_channels(x, h, dh, dx, S, D, jac, th, solve):
+    """Per impedance channel (TE, TM): the surface field ψ = solve(M) and its far-field amplitudes toward th."""
     E = np.exp(-1j * K * (np.sin(th)[:, None] * x[None, :] + np.cos(th)[:, None] * h[None, :]))
-    out = []
     for _, eta in channels("impedance", "unpolarized", None, N_MED, LAM):
-        M = 0.5 * np.eye(n) - D - 1j * K * eta * S * jac[None, :]
-        if per_incidence:
-            psi = np.stack([np.linalg.solve(M, rhs[:, i]) for i in range(rhs.shape[1])], axis=1)
-        else:
-            psi = sl.lu_solve(sl.lu_factor(M), rhs)
+        psi = solve(0.5 * np.eye(x.size) - D - 1j * K * eta * S * jac[None, :])
         F = (np.cos(th)[:, None] - dh[None, :] * np.sin(th)[:, None]) - eta * jac[None, :]
-        amp = -1j * K * dx * (E * F) @ psi
+        yield eta, psi, -1j * K * dx * (E * F) @ psi
+
+
+def baseline_one(x, h, dh, d2h, dx, inc_rad, per_incidence=True):
+    """Straightforward scipy solver (impedance, TE and TM) for one profile: returns energy (2, I)."""
+    S, D, jac, rhs, p_inc = _baseline_system(x, h, dh, d2h, dx, inc_rad)
+    tq, wq = np.polynomial.legendre.leggauss(quadrature_points(K, x.size * dx))
+    if per_incidence:
+        solve = lambda M: np.stack([np.linalg.solve(M, rhs[:, i]) for i in range(rhs.shape[1])], axis=1)  # noqa: E731
+    else:
+        solve = lambda M: sl.lu_solve(sl.lu_factor(M), rhs)  # noqa: E731
+    out = []
+    for eta, psi, amp in _baseline_channels(x, h, dh, dx, S, D, jac, tq * np.pi / 2, solve):
         refl = (wq * np.pi / 2) @ (np.abs(amp) ** 2) / (8 * np.pi * K * p_inc)
         absorbed = np.real(eta) * dx * np.sum(np.abs(psi) ** 2 * jac[:, None], axis=0) / p_inc
         out.append(refl + absorbed)
@@ -178,28 +187,10 @@ def accuracy_sweep():
 
 def baseline_lobes(x, h, dh, d2h, dx, inc_rad, th_s):
     """σ(θ_s) of the scipy baseline for TE and TM (one LU each; accuracy does not depend on that)."""
-    n = x.size
-    X, Y = x[:, None] - x[None, :], h[:, None] - h[None, :]
-    R = np.hypot(X, Y)
-    np.fill_diagonal(R, 1.0)
-    h0, h1 = sp.hankel1(0, K * R), sp.hankel1(1, K * R)
-    jac = np.sqrt(1 + dh**2)
-    S = 0.25j * dx * h0
-    np.fill_diagonal(S, 0.25j * dx * (1 + 2j / np.pi * np.log(1.78107 * K * dx * jac / (4 * np.e))))
-    D = 0.25j * K * dx * h1 * (Y - dh[None, :] * X) / R
-    np.fill_diagonal(D, dx * d2h / (4 * np.pi * jac**2))
-    g = (n * dx) / 4
-    rhs = np.asarray(incident_field(jnp.asarray(x), jnp.asarray(h), jnp.asarray(inc_rad), K, g))
-    p_inc = np.asarray(incident_power(jnp.asarray(inc_rad), K, g))
-    E = np.exp(-1j * K * (np.sin(th_s)[:, None] * x[None, :] + np.cos(th_s)[:, None] * h[None, :]))
-    out = []
-    for _, eta in channels("impedance", "unpolarized", None, N_MED, LAM):
-        M = 0.5 * np.eye(n) - D - 1j * K * eta * S * jac[None, :]
-        psi = sl.lu_solve(sl.lu_factor(M), rhs)
-        F = (np.cos(th_s)[:, None] - dh[None, :] * np.sin(th_s)[:, None]) - eta * jac[None, :]
-        amp = -1j * K * dx * (E * F) @ psi
-        out.append((np.abs(amp) ** 2 / (8 * np.pi * K * p_inc)).T)
-    return np.stack(out)
+    S, D, jac, rhs, p_inc = _baseline_system(x, h, dh, d2h, dx, inc_rad)
+    solve = lambda M: sl.lu_solve(sl.lu_factor(M), rhs)  # noqa: E731
+    return np.stack([(np.abs(amp) ** 2 / (8 * np.pi * K * p_inc)).T
+                     for _, _, amp in _baseline_channels(x, h, dh, dx, S, D, jac, th_s, solve)])
 
 
 def main():

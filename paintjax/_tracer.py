@@ -85,6 +85,7 @@ The lanes are split over all local devices with `shard_map`.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 
@@ -808,7 +809,14 @@ def _chunk_device(sc: _Scene, key, state, n_local, single, *, opt: TracerOptions
 _RUNNERS: dict = {}
 
 
+def _kernel_options(opt: TracerOptions) -> TracerOptions:
+    """`opt` with the fields that only the host reads (scene flags, dtype choice, batch summaries) set
+    to fixed values, so that runs differing only in them share one compiled wavefront kernel."""
+    return dataclasses.replace(opt, batches=opt.lanes, float64=False, mis=True, reverse_share=0.5)
+
+
 def _runner(mesh: Mesh, opt: TracerOptions):
+    opt = _kernel_options(opt)
     key = (mesh, opt)
     if key not in _RUNNERS:
         spec = PartitionSpec("rays")

@@ -64,6 +64,7 @@ def test_readable_table(capsys):
         (["microfacet", "--reflectance", "1.5"], "reflectance"),
         (["microfacet", "--n", "0.5"], "refractive index"),
         (["table1", "--target-se", "0"], "target_se"),
+        (["table1", "--max-rays", "0"], "max_rays"),
         (["table1", "--waviness", "40"], "waviness"),
         (["simulate", "--brdf", "mirror", "--brdf-method", "rotate"], "brdf_method"),
         (["simulate", "--brdf", "kirchhoff", "--correlation", "exponential"], "correlation"),

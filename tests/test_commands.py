@@ -73,6 +73,20 @@ def test_simulate_json_contract_and_result_files(capsys, tmp_path):
     assert sum(r["energy"].values()) == pytest.approx(1.0, abs=LEDGER_ROUNDING)
 
 
+def test_adaptive_first_round_follows_the_target():
+    """The first round scales as (0.5 / target)² from the default's 131 072 rays, within [16 384, 131 072];
+    a target outside (0, 10] fails before any table or array is built."""
+    from paintjax._commands.simulate import first_round_rays, simulate
+
+    assert first_round_rays(0.5) == 131072 and first_round_rays(0.3) == 131072
+    assert first_round_rays(1.0) == 32768 and first_round_rays(3.0) == 16384
+    for bad in (0.0, -1.0, 12.0):
+        with pytest.raises(ValueError, match="target_se"):
+            simulate("silver1", target_se=bad)
+    with pytest.raises(ValueError, match="max_rays"):
+        simulate("silver1", max_rays=0)
+
+
 def test_simulate_array_overrides_reach_the_generator():
     """`--d50` scales the sample's width law (and the default tile) and `--platelet-thickness` sets t."""
     from paintjax._commands.simulate import sample_array

@@ -22,6 +22,24 @@ DEFAULT_PRIMER_ALBEDO = 0.3
 MIRROR_APERTURE_DEG = 2.0
 #: Default precision when no ray count is given: L* standard error at every angle.
 DEFAULT_TARGET_SE = 0.5
+#: First round of the adaptive rule at the default precision (Silver #1's hybrid column reaches SE 0.5
+#: there, seed 0), and the smallest first round (32 batches of 512 rays for the batch-means SE).
+FIRST_ROUND_RAYS, MIN_FIRST_ROUND_RAYS = 131072, 16384
+
+
+def check_adaptive(target_se: float, max_rays: int) -> None:
+    """Validate the adaptive rule's L* SE target (0, 10] and its ray ceiling (≥ 1)."""
+    if not (0.0 < float(target_se) <= 10.0):
+        raise ValueError(f"target_se must lie in (0, 10] L* units, got {target_se!r}")
+    if int(max_rays) < 1:
+        raise ValueError(f"max_rays must be a positive integer, got {max_rays!r}")
+
+
+def first_round_rays(target_se: float) -> int:
+    """Rays of the adaptive rule's first round for an L* SE target: SE ∝ 1/√rays, so the default
+    round scaled by (DEFAULT_TARGET_SE / target)², within [MIN_FIRST_ROUND_RAYS, FIRST_ROUND_RAYS]."""
+    n = int(np.ceil(FIRST_ROUND_RAYS * (DEFAULT_TARGET_SE / float(target_se)) ** 2))
+    return int(np.clip(n, MIN_FIRST_ROUND_RAYS, FIRST_ROUND_RAYS))
 
 
 def register(sub) -> None:
@@ -189,6 +207,8 @@ def simulate(
     s = load_sample(sample)
     if rays is not None and int(rays) < 1:
         raise ValueError(f"rays must be a positive integer, got {rays!r}")
+    if rays is None:
+        check_adaptive(target_se, max_rays)
     array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)  # fail before any table is built
     n = s.binder_index
     sigma = s.sigma.value if sigma is None else sigma
@@ -205,7 +225,7 @@ def simulate(
     kwargs = dict(grid=grid, n=n, clearcoat_thickness=s.clearcoat_thickness, primer_albedo=primer_albedo, waviness_deg=waviness, seed=seed,
                   single_scatter=single_scatter, options=options)
     if rays is None:  # the adaptive rule per wavelength: each run's SE ≤ target bounds the combination's
-        kwargs.update(rays=131072, target_se_lstar=target_se, max_rays=max_rays)
+        kwargs.update(rays=first_round_rays(target_se), target_se_lstar=target_se, max_rays=max_rays)
     else:
         kwargs.update(rays=int(rays))
     results = []

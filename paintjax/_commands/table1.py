@@ -79,12 +79,9 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
     from .._microfacet import microfacet_reflectance_factor
     from .._samples import load_sample
     from .._tilt import GammaTilt
-    from .simulate import simulate
+    from .simulate import check_adaptive, simulate
 
-    if not (0.0 < float(target_se) <= 10.0):
-        raise ValueError(f"target_se must lie in (0, 10] L* units, got {target_se!r}")
-    if int(max_rays) < 1:
-        raise ValueError(f"max_rays must be a positive integer, got {max_rays!r}")
+    check_adaptive(target_se, max_rays)
     if int(mirror_rays) < 1:
         raise ValueError(f"mirror_rays must be a positive integer, got {mirror_rays!r}")
     from .._interface import check_waviness
