@@ -142,6 +142,9 @@ class TracerOptions(eqx.Module):
             from outside does not), so arrays should be overlap-free (`array_statistics`).
         float64: trace in float64 when x64 is enabled (default float32 geometry, which is ample
             for µm-scale boxes in a sub-mm tile and twice as fast; tallies are float64 under x64).
+
+    `batches`, `float64`, `mis` and `reverse_share` are read on the host only (scene flags, dtypes,
+    summaries): the compiled kernel is cached without them (`_kernel_options`), so it must not read them.
     """
 
     lanes: int = eqx.field(static=True, default=2048)
