@@ -76,6 +76,12 @@ def test_readable_table(capsys):
         (["simulate", "--thickness", "0.8"], "thickness"),
         (["array", "--platelet-thickness", "0", "--no-plots"], "platelet_thickness"),
         (["simulate", "--sample", "gold"], "unknown sample"),
+        (["simulate", "--illumination", "0"], "illumination_deg"),
+        (["simulate", "--aspecular", "15,140"], "aspecular_deg"),
+        (["simulate", "--illumination", "15"] + ["--aspecular", "110"], "aspecular_deg"),
+        (["simulate", "--aspecular", "15,nan"], "--aspecular"),
+        (["simulate", "--measured", "140,100"], "measured"),
+        (["fit", "--measured", "143,107,inf,37,32"], "--measured"),
     ],
 )
 def test_bad_input_is_a_one_line_error(argv, needle, capsys):

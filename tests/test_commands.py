@@ -73,6 +73,40 @@ def test_simulate_json_contract_and_result_files(capsys, tmp_path):
     assert sum(r["energy"].values()) == pytest.approx(1.0, abs=LEDGER_ROUNDING)
 
 
+def test_simulate_other_illuminations_are_reciprocal():
+    """MA98's 15° illumination set and a 30° one through `simulate`: source and detector swapped
+    (15° → 30° on the specular side vs 30° → 15° there; 15° → 30° on the illuminator side vs 30° → 15°
+    there) give the same reflectance factor within 4 combined SE. Reciprocity, and the paint's statistical
+    isotropy under the half-turn that carries each swapped pair onto the instrument's plane convention."""
+    from paintjax._commands.simulate import simulate
+
+    kw = dict(brdf="kirchhoff", rays=16384, seed=3)
+    a = simulate("silver2", illumination_deg=15.0, **kw)
+    b = simulate("silver2", illumination_deg=30.0, aspecular_deg=[15, 45, -15, 75, 100], **kw)
+    assert a["aspecular_deg"].tolist() == [-45.0, -15.0, 15.0, 45.0, 80.0] and a["illumination_deg"] == 15.0
+    assert a["measured_L_star"] is None and a["flop_index"] is None and b["flop_index"] is None  # no published values here
+    for ia, ib in ((1, 0), (3, 1)):
+        diff = a["reflectance_factor"][ia] - b["reflectance_factor"][ib]
+        se = np.hypot(a["reflectance_factor_se"][ia], b["reflectance_factor_se"][ib])
+        assert abs(diff) < 4 * se, (ia, ib, diff, se)
+    assert abs(a["reflectance_factor"][0] - a["reflectance_factor"][1]) > 4 * np.hypot(*a["reflectance_factor_se"][:2])  # distinct angles
+
+
+def test_simulate_measured_follows_the_geometry():
+    """The published L* are compared only in their own geometry; given values must match the detectors."""
+    from paintjax._commands.simulate import instrument_geometry, measured_lightness
+    from paintjax._samples import load_sample
+
+    s = load_sample("silver1")
+    np.testing.assert_array_equal(measured_lightness(s, instrument_geometry()), s.L_star)
+    assert measured_lightness(s, instrument_geometry(45.0, [-15, 15, 25, 45, 75, 110])) is None
+    assert measured_lightness(s, instrument_geometry(15.0)) is None
+    np.testing.assert_array_equal(measured_lightness(s, instrument_geometry(45.0, [15, 45]), [140, 60]), [140.0, 60.0])
+    for bad in ([140.0], [140.0, np.nan]):
+        with pytest.raises(ValueError, match="measured"):
+            measured_lightness(s, instrument_geometry(45.0, [15, 45]), bad)
+
+
 def test_adaptive_first_round_follows_the_target():
     """The first round scales as (0.5 / target)² from the default's 131 072 rays, within [16 384, 131 072];
     a target outside (0, 10] fails before any table or array is built."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 
 from .._io import to_jsonable
@@ -11,6 +12,19 @@ from .._io import to_jsonable
 def print_json(obj) -> None:
     json.dump(to_jsonable(obj), sys.stdout, indent=None)
     sys.stdout.write("\n")
+
+
+def parse_floats(text: str, name: str, count: int | None = None) -> list[float]:
+    """Comma-separated finite numbers of option `name` (exactly `count` of them if given)."""
+    try:
+        values = [float(v) for v in str(text).replace(" ", "").split(",") if v != ""]
+    except ValueError:
+        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
+    if not values or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{name} must be comma-separated finite numbers, got {text!r}")
+    if count is not None and len(values) != count:
+        raise ValueError(f"{name} must have {count} comma-separated values, got {len(values)}")
+    return values
 
 
 def add_output_argument(parser, default: str) -> None:

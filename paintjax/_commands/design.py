@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import sys
 
-from ._common import add_json_argument, print_json
+from ._common import add_json_argument, parse_floats, print_json
 from .._cache import enable_compilation_cache
-from .fit import add_model_arguments, parse_fixed, parse_floats, parse_free
+from .fit import add_model_arguments, parse_fixed, parse_free
 
 DEFAULT_FREE = ("shape", "scale", "sigma", "tau")
 

@@ -6,20 +6,10 @@ from __future__ import annotations
 import time
 
 from .._cache import enable_compilation_cache
-from ._common import add_json_argument, print_json
+from ._common import add_json_argument, parse_floats, print_json
 
 #: Default free parameters of least squares for each built-in forward model family.
 DEFAULT_FREE = ("shape", "scale", "sigma", "tau", "diffuse")
-
-
-def parse_floats(text: str, name: str, count: int | None = None) -> list[float]:
-    try:
-        values = [float(v) for v in str(text).replace(" ", "").split(",") if v != ""]
-    except ValueError:
-        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
-    if count is not None and len(values) != count:
-        raise ValueError(f"{name} must have {count} comma-separated values, got {len(values)}")
-    return values
 
 
 def parse_fixed(items) -> dict:

@@ -9,7 +9,7 @@ from importlib import resources
 
 import numpy as np
 
-from ._common import add_array_arguments, add_json_argument, add_output_argument, array_overrides, print_json
+from ._common import add_array_arguments, add_json_argument, add_output_argument, array_overrides, parse_floats, print_json
 from .._cache import enable_compilation_cache
 from .._profiles import CORRELATIONS
 
@@ -42,12 +42,46 @@ def first_round_rays(target_se: float) -> int:
     return int(np.clip(n, MIN_FIRST_ROUND_RAYS, FIRST_ROUND_RAYS))
 
 
+def instrument_geometry(illumination_deg: float = 45.0, aspecular_deg=None, *, detector_aperture_deg: float = 0.0):
+    """The virtual instrument of `simulate`: `ma98_geometry` with MA98's angles for its illumination by default
+    (the five standard aspecular angles; at 15° illumination −45, −15, 15, 45, 80)."""
+    from .._instrument import ASPECULAR_15, STANDARD_ASPECULAR, ma98_geometry
+
+    if aspecular_deg is None:
+        aspecular_deg = ASPECULAR_15 if float(illumination_deg) == 15.0 else STANDARD_ASPECULAR
+    return ma98_geometry(illumination_deg, aspecular_deg, detector_aperture_deg=detector_aperture_deg)
+
+
+def measured_lightness(sample, geometry, measured=None):
+    """The L* to compare with: `measured` (one finite value per detector), else the sample's published
+    values when the geometry is theirs (45° illumination, their aspecular angles), else None."""
+    gamma = np.asarray(geometry.aspecular_deg, dtype=float)
+    if measured is None:
+        theirs = float(geometry.illumination_polar_deg) == 45.0 and gamma.tolist() == list(sample.aspecular_deg)
+        return np.asarray(sample.L_star, dtype=float) if theirs else None
+    m = np.asarray(measured, dtype=float).ravel()
+    if m.shape != gamma.shape or not np.all(np.isfinite(m)):
+        raise ValueError(f"measured must hold {gamma.size} finite L* values, one per aspecular angle {gamma.tolist()}, got {measured!r}")
+    return m
+
+
+def geometry_flop_index(geometry, L):
+    """Flop index from L* at 15°, 45° and 110° aspecular under 45° illumination; None if the geometry lacks one."""
+    from .._lightness import flop_index
+
+    gamma = np.asarray(geometry.aspecular_deg, dtype=float).tolist()
+    if float(geometry.illumination_polar_deg) != 45.0 or not all(a in gamma for a in (15.0, 45.0, 110.0)):
+        return None
+    return float(flop_index(*(L[gamma.index(a)] for a in (15.0, 45.0, 110.0))))
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "simulate",
         help="ray-trace a sample's microstructure: five-angle L* with standard errors",
-        description="Ray-batch Monte Carlo through a generated platelet array under a flat clearcoat "
-        "(45° illumination, aspecular 15, 25, 45, 75, 110°). Lengths in µm, angles in degrees.",
+        description="Ray-batch Monte Carlo through a generated platelet array under a flat clearcoat, seen by a virtual "
+        "multi-angle spectrophotometer (default: 45° illumination, aspecular 15, 25, 45, 75, 110°; MA98's other angles "
+        "with --illumination and --aspecular). Lengths in µm, angles in degrees.",
     )
     p.add_argument("--sample", default="silver1", help="reference sample: silver1 or silver2 (default silver1)")
     p.add_argument("--shape", type=float, help="tilt gamma shape (> 0); default: the sample's")
@@ -68,6 +102,14 @@ def register(sub) -> None:
     p.add_argument("--primer-albedo", type=float, default=DEFAULT_PRIMER_ALBEDO,
                    help=f"Lambertian primer albedo in [0, 1] (default {DEFAULT_PRIMER_ALBEDO})")
     p.add_argument("--waviness", type=float, default=0.0, help="clearcoat RMS slope angle [deg] in [0, 15]: a wavy (microfacet dielectric) top surface; default 0 = flat")
+    p.add_argument("--illumination", type=float, default=45.0,
+                   help="illumination polar angle [deg] in (0, 85] (default 45; an MA98 also illuminates at 15)")
+    p.add_argument("--aspecular",
+                   help="comma-separated aspecular angles [deg], each leaving the detector within ±85° of the normal; default "
+                   "15,25,45,75,110 (at 15° illumination MA98's -45,-15,15,45,80); e.g. --aspecular=-15,15,25,45,75,110 for MA98's six (the = keeps the minus from reading as an option)")
+    p.add_argument("--measured",
+                   help="comma-separated measured L*, one per aspecular angle, to compare with; default: the sample's "
+                   "published values when the geometry is the standard five at 45°")
     p.add_argument("--rays", type=int, help=f"number of rays; default: as many as needed for an L* standard error ≤ {DEFAULT_TARGET_SE}")
     p.add_argument("--seed", type=int, default=0, help="random seed of the array and the rays (default 0)")
     p.add_argument("--single-scatter", action="store_true", help="score only the first scattering event of each path")
@@ -179,6 +221,9 @@ def simulate(
     reflectance=None,
     primer_albedo: float = DEFAULT_PRIMER_ALBEDO,
     waviness: float = 0.0,
+    illumination_deg: float = 45.0,
+    aspecular_deg=None,
+    measured=None,
     rays: int | None = None,
     seed: int = 0,
     single_scatter: bool = False,
@@ -188,7 +233,12 @@ def simulate(
     spectral: bool = False,
     progress: bool = False,
 ) -> dict:
-    """Five-angle tracer prediction for a sample with overrides, as the CLI's JSON dict (plus extras).
+    """Multi-angle tracer prediction for a sample with overrides, as the CLI's JSON dict (plus extras).
+
+    `illumination_deg`, `aspecular_deg`: the instrument (`instrument_geometry`; default 45° and the five
+    standard angles). `measured`: L* to compare with, one per angle (`measured_lightness`; default the
+    sample's published values in their geometry, else none). "flop_index" is None unless the geometry
+    has 15°, 45° and 110° at 45° illumination.
 
     `spectral`: trace at the `SPECTRAL_NODES_NM` wavelengths (platelet BRDF at each, same array and
     seed) and combine them under D65 and the CIE 1964 10° observer (`_spectral`); the result then
@@ -197,8 +247,6 @@ def simulate(
     (rays so far, the worst L* standard error, seconds) and one per wavelength.
     """
     from .._grid import build_grid
-    from .._instrument import STANDARD_ASPECULAR, ma98_geometry
-    from .._lightness import flop_index
     from .._samples import load_sample
     from .._spectral import SPECTRAL_NODES_NM, combine_spectral
     from .._tracer import trace
@@ -210,6 +258,8 @@ def simulate(
     if rays is None:
         check_adaptive(target_se, max_rays)
     array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)  # fail before any table is built
+    geometry = instrument_geometry(illumination_deg, aspecular_deg)
+    measured_L = measured_lightness(s, geometry, measured)
     n = s.binder_index
     sigma = s.sigma.value if sigma is None else sigma
     tau = s.tau.value if tau is None else tau
@@ -221,7 +271,8 @@ def simulate(
                          platelet_thickness=platelet_thickness)
     grid = build_grid(array)
     aperture = MIRROR_APERTURE_DEG if platelets[0].is_delta else 0.0
-    geometry = ma98_geometry(45.0, STANDARD_ASPECULAR, detector_aperture_deg=aperture)
+    if aperture:
+        geometry = instrument_geometry(illumination_deg, aspecular_deg, detector_aperture_deg=aperture)
     kwargs = dict(grid=grid, n=n, clearcoat_thickness=s.clearcoat_thickness, primer_albedo=primer_albedo, waviness_deg=waviness, seed=seed,
                   single_scatter=single_scatter, options=options)
     if rays is None:  # the adaptive rule per wavelength: each run's SE ≤ target bounds the combination's
@@ -251,10 +302,10 @@ def simulate(
     out["aperture_deg"] = aperture
     out["waviness_deg"] = float(waviness)
     out["spectral"] = bool(spectral)
+    out["illumination_deg"] = float(geometry.illumination_polar_deg)
     out["histogram_reflectance_factor"] = res.histogram_reflectance_factor
-    L = res.L_star
-    out["flop_index"] = float(flop_index(L[0], L[2], L[4]))
-    out["measured_L_star"] = np.asarray(s.L_star)
+    out["flop_index"] = geometry_flop_index(geometry, res.L_star)
+    out["measured_L_star"] = measured_L
     out["platelets"] = int(np.asarray(array.widths).shape[0])
     out["platelet_median_width_um"] = float(np.median(np.asarray(array.widths)))
     out["platelet_thickness_um"] = float(array.thickness)
@@ -276,11 +327,13 @@ def _plot(r: dict, folder) -> str:
 
     fig, ax = plt.subplots(figsize=(5.5, 4.2))
     gamma = np.asarray(r["aspecular_deg"])
-    ax.errorbar(gamma, r["measured_L_star"], yerr=0.3, fmt="ko", label=f"measured {r['sample']}")
+    if r["measured_L_star"] is not None:
+        ax.errorbar(gamma, r["measured_L_star"], yerr=0.3 if r["inputs"]["measured"] is None else None, fmt="ko",
+                    label=f"measured {r['sample']}" if r["inputs"]["measured"] is None else "measured (given)")
     ax.errorbar(gamma, r["L_star"], yerr=r["L_star_se"], fmt="s-", color="C0", label=f"tracer, {r['brdf']} platelets ({r['rays']} rays)")
     ax.set_xlabel("aspecular angle [deg]")
     ax.set_ylabel("L*")
-    ax.set_title(f"paintjax simulate: {r['sample']}, seed {r['seed']}")
+    ax.set_title(f"paintjax simulate: {r['sample']}, {r['illumination_deg']:g}° illumination, seed {r['seed']}")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     path = atomic_savefig(fig, f"{folder}/simulate.png")
@@ -296,12 +349,15 @@ def run(args) -> int:
         args.sample, shape=args.shape, scale=args.scale, sigma=args.sigma, tau=args.tau, pvc=args.pvc,
         thickness=args.thickness, d50=args.d50, platelet_thickness=args.platelet_thickness, brdf=args.brdf, brdf_method=args.brdf_method, correlation=args.correlation,
         reflectance=args.reflectance, primer_albedo=args.primer_albedo,
-        waviness=args.waviness, rays=args.rays, seed=args.seed, single_scatter=args.single_scatter, spectral=args.spectral,
-        progress=True,
+        waviness=args.waviness, illumination_deg=args.illumination,
+        aspecular_deg=None if args.aspecular is None else parse_floats(args.aspecular, "--aspecular"),
+        measured=None if args.measured is None else parse_floats(args.measured, "--measured"),
+        rays=args.rays, seed=args.seed, single_scatter=args.single_scatter, spectral=args.spectral, progress=True,
     )
     r["seed"] = args.seed
     r["inputs"] = {k: getattr(args, k) for k in ("shape", "scale", "sigma", "tau", "pvc", "thickness", "d50", "platelet_thickness", "brdf", "brdf_method", "correlation", "reflectance",
-                                                 "primer_albedo", "waviness", "rays", "seed", "single_scatter", "spectral")}
+                                                 "primer_albedo", "waviness", "illumination", "aspecular", "measured", "rays", "seed",
+                                                 "single_scatter", "spectral")}
     atomic_write_json(f"{args.out}/simulate.json", r)
     png = _plot(r, args.out)
     if args.json:
@@ -311,12 +367,14 @@ def run(args) -> int:
           f"{', detector aperture %.1f°' % r['aperture_deg'] if r['aperture_deg'] else ''}"
           f"{', single scattering' if args.single_scatter else ''}"
           f"{', spectral (D65, CIE 1964 10°; R factor = Y/100)' if args.spectral else ''}")
-    lab = r.get("Lab")
+    lab, measured = r.get("Lab"), r["measured_L_star"]
+    print(f"{r['illumination_deg']:g}° illumination")
     print(f"{'aspecular':>10} {'R factor':>10} {'L*':>8} {'± SE':>6} {'measured':>9}" + (f" {'a*':>6} {'b*':>6}" if lab is not None else ""))
-    for j, row in enumerate(zip(r["aspecular_deg"], r["reflectance_factor"], r["L_star"], r["L_star_se"], r["measured_L_star"])):
-        print(f"{row[0]:>9.0f}° {row[1]:>10.4f} {row[2]:>8.1f} {row[3]:>6.2f} {row[4]:>9.1f}"
+    for j, row in enumerate(zip(r["aspecular_deg"], r["reflectance_factor"], r["L_star"], r["L_star_se"])):
+        print(f"{row[0]:>9.0f}° {row[1]:>10.4f} {row[2]:>8.1f} {row[3]:>6.2f} " + (f"{measured[j]:>9.1f}" if measured is not None else f"{'—':>9}")
               + (f" {lab[j][1]:>6.2f} {lab[j][2]:>6.2f}" if lab is not None else ""))
-    print(f"flop index: {r['flop_index']:.2f}")
+    if r["flop_index"] is not None:
+        print(f"flop index: {r['flop_index']:.2f}")
     e = r["energy"]
     print("energy: " + ", ".join(f"{k.replace('_', ' ')} {v:.4f}" for k, v in e.items()) + f" (sum {sum(e.values()):.6f})")
     print(f"{r['rays']} rays in {r['tracing_seconds']:.1f} s tracing ({r['seconds']:.1f} s in all). Plot: {png}; data: {args.out}/simulate.json")
