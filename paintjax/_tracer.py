@@ -87,6 +87,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 from collections.abc import Callable
 
 import equinox as eqx
@@ -189,6 +190,7 @@ class TraceResult(eqx.Module):
     apertures). Standard errors are batch means over `batches` groups of lanes (bidirectional:
     of each pass, added in quadrature; `batch_reflectance_factor` is then the forward batch plus
     the reverse pool's batch). `rays` counts the rays of all passes; `energy` is per forward ray.
+    `resolved` flags, per detector, whether light reached it in at least half the batches.
     """
 
     aspecular_deg: np.ndarray
@@ -204,6 +206,11 @@ class TraceResult(eqx.Module):
     batch_reflectance_factor: np.ndarray  # (batches, m) NEE estimate of each batch
     batch_histogram: np.ndarray  # (batches, m)
 
+    @property
+    def resolved(self) -> np.ndarray:
+        """Per detector: did light reach it in at least half the batches (`resolved_detectors`)?"""
+        return resolved_detectors(self.batch_reflectance_factor)
+
     def to_dict(self) -> dict:
         """The `paintjax simulate --json` form."""
         return {
@@ -215,7 +222,18 @@ class TraceResult(eqx.Module):
             "energy": dict(self.energy),
             "rays": self.rays,
             "seconds": self.seconds,
+            "resolved": self.resolved,
         }
+
+
+def resolved_detectors(batch_reflectance_factor) -> np.ndarray:
+    """Per detector (last axis): True where at least half the batches (first axis) have a nonzero estimate.
+
+    Where most batches saw no light, the estimate rests on a few rare paths and the batch-means
+    standard error (even a zero one) says nothing about its error: such an L* is not resolved.
+    """
+    b = np.asarray(batch_reflectance_factor)
+    return 2 * np.count_nonzero(b, axis=0) >= b.shape[0]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1014,7 +1032,7 @@ def trace(
         seed: random seed; the result depends on it and on `options`, not on the schedule.
         single_scatter: score only the first scattering event of each path.
         target_se_lstar: if given, keep adding rays until the L* standard error is at most this at
-            every detector (or `max_rays` is reached); `rays` is then the first round, and each
+            every detector and every detector is resolved (`resolved_detectors`), or `max_rays` is reached; `rays` is then the first round, and each
             round at most quadruples the rays.
         max_rays: ceiling for `target_se_lstar` (default 64 × rays; rounded up per pass like `rays`).
         options: `TracerOptions`.
@@ -1022,7 +1040,8 @@ def trace(
             far, the L* standard errors per detector, seconds since tracing began); None: silent.
 
     Returns:
-        A `TraceResult`.
+        A `TraceResult`. Warns (RuntimeWarning) when light reached a detector in fewer than half the
+        batches: its L* and standard error are then not resolved (`TraceResult.resolved`).
     """
     check_coat_index(n)
     _check_range("primer_albedo", primer_albedo, 0.0, 1.0)
@@ -1095,7 +1114,8 @@ def trace(
             progress(int(N), np.asarray(Lse), time.perf_counter() - t0)
         if target_se_lstar is None:
             break
-        worst = float(np.max(Lse / target_se_lstar))
+        # a detector that most batches missed is not converged, whatever its (unreliable) SE
+        worst = float(np.max(np.where(resolved_detectors(per_batch[:, :m]), Lse / target_se_lstar, np.inf)))
         if worst <= 1.0 or n_local >= limit_local:
             break
         # rays for the target from this round's SE, at most _MAX_GROWTH× per round: a rare spike in an
@@ -1104,6 +1124,13 @@ def trace(
         n_local = min(limit_local, n_local + max(grow, opt.lanes))
     seconds = time.perf_counter() - t0
     R, Rse = est[:m], se[:m]  # L, Lse: the last round's
+    ok = resolved_detectors(per_batch[:, :m])
+    if not np.all(ok):
+        hits = np.count_nonzero(per_batch[:, :m], axis=0)
+        where = ", ".join(f"{g:g}° ({h} of {per_batch.shape[0]} batches)" for g, h, o in
+                          zip(np.asarray(geometry.aspecular_deg, dtype=float), hits, ok) if not o)
+        warnings.warn(f"light reached these detectors in fewer than half the batches: {where}; their L* and standard "
+                      f"errors are not resolved after {int(N)} rays: trace more rays", RuntimeWarning, stacklevel=2)
     return TraceResult(
         aspecular_deg=np.asarray(geometry.aspecular_deg, dtype=float),
         reflectance_factor=R,

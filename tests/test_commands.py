@@ -57,6 +57,7 @@ def test_table1_result_files(table1_run):
         assert row["flop"]["hybrid"] == pytest.approx(float(flop_index(L[0], L[2], L[4])), rel=1e-12)
         assert sum(row["energy_hybrid"].values()) == pytest.approx(1.0, abs=LEDGER_ROUNDING)
         assert row["rays"]["mirror"] == 8192 and row["rays"]["hybrid"] <= 131072 + 8 * jax.local_device_count()  # passes round up
+        assert row["resolved"]["hybrid"] == [True] * 5 and len(row["resolved"]["mirror"]) == 5  # the rough lobe reaches every detector
 
 
 def test_simulate_json_contract_and_result_files(capsys, tmp_path):

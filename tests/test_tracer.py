@@ -125,6 +125,27 @@ def test_energy_lossless_mirror_platelets():
     assert np.all(np.abs(z) < K)
 
 
+def test_detectors_no_light_reaches_are_flagged_not_resolved():
+    """Horizontal mirrors over a black primer send light only into the specular direction: the detector
+    there is reached in every batch, the others never (R exactly 0, batch-means SE 0). Those are flagged
+    as not resolved with a warning, and the adaptive rule does not call them converged."""
+    from paintjax._tracer import resolved_detectors
+
+    arr = boolean_platelet_array(1, 100, tile=(40.0, 40.0), basecoat_thickness=20.0, width=4.0, thickness=0.2, margin=2.2)
+    grid = build_grid(arr, 5.0, capacity=24)
+    geo = ma98_geometry(45.0, [0.0, 15.0, 25.0, 45.0, 75.0], detector_aperture_deg=12.0)  # the cones miss the specular one by ≥ 3°
+    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.0, seed=6, options=OPT_FWD)
+    with pytest.warns(RuntimeWarning, match=r"15° \(0 of 32 batches\).*not resolved"):
+        res = trace(arr, geo, MirrorBRDF(n_binder=N_COAT), rays=4096, **kw)
+    assert res.resolved.tolist() == [True, False, False, False, False]
+    assert res.reflectance_factor[0] > 0 and np.all(res.reflectance_factor[1:] == 0.0) and np.all(res.L_star_se[1:] == 0.0)
+    assert res.to_dict()["resolved"].tolist() == res.resolved.tolist()
+    with pytest.warns(RuntimeWarning, match="not resolved"):  # SE 0 ≤ target, yet it keeps tracing to the ceiling
+        adaptive = trace(arr, geo, MirrorBRDF(n_binder=N_COAT), rays=4096, target_se_lstar=5.0, max_rays=16384, **kw)
+    assert adaptive.rays >= 16384
+    assert resolved_detectors(np.array([[1.0, 0.0, 0.0], [2.0, 3.0, 0.0]])).tolist() == [True, True, False]  # half suffices
+
+
 @pytest.mark.parametrize("waviness", [0.0, 8.0])
 def test_nee_and_histogram_agree_as_aperture_shrinks(lambert_scene, waviness):
     """NEE and the finite-aperture histogram estimate the same cone average; both tend to NEE(0).

@@ -372,7 +372,10 @@ def run(args) -> int:
     print(f"{'aspecular':>10} {'R factor':>10} {'L*':>8} {'± SE':>6} {'measured':>9}" + (f" {'a*':>6} {'b*':>6}" if lab is not None else ""))
     for j, row in enumerate(zip(r["aspecular_deg"], r["reflectance_factor"], r["L_star"], r["L_star_se"])):
         print(f"{row[0]:>9.0f}° {row[1]:>10.4f} {row[2]:>8.1f} {row[3]:>6.2f} " + (f"{measured[j]:>9.1f}" if measured is not None else f"{'—':>9}")
-              + (f" {lab[j][1]:>6.2f} {lab[j][2]:>6.2f}" if lab is not None else ""))
+              + (f" {lab[j][1]:>6.2f} {lab[j][2]:>6.2f}" if lab is not None else "") + ("" if r["resolved"][j] else "  not resolved"))
+    if not all(r["resolved"]):
+        print("not resolved: light reached that detector in fewer than half the batches, so its L* and SE rest on a few "
+              "rare paths; trace more rays (--rays)")
     if r["flop_index"] is not None:
         print(f"flop index: {r['flop_index']:.2f}")
     e = r["energy"]

@@ -128,6 +128,10 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
         row["rms_analytic"] = _rms(row["analytic"], row["measured"])
         row["flop"] = {"measured": fi(row["measured"]), "hybrid": fi(row["hybrid"]), "mirror": fi(row["mirror"]), "analytic": fi(row["analytic"])}
         row["rays"] = {"hybrid": None if hybrid is None else hybrid["rays"], "mirror": mirror["rays"]}
+        row["resolved"] = {"hybrid": None if hybrid is None else np.asarray(hybrid["resolved"]), "mirror": np.asarray(mirror["resolved"])}
+        if not np.all(row["resolved"]["mirror"]) or (hybrid is not None and not np.all(row["resolved"]["hybrid"])):
+            out["notes"].append(f"{name}: some detectors are not resolved (light reached them in fewer than half the "
+                                f"batches; see table1.json 'resolved'): their L* and SE rest on a few rare paths")
         row["energy_hybrid"] = None if hybrid is None else hybrid["energy"]
         row["seconds"] = time.perf_counter() - t0
         out["samples"][name] = row
