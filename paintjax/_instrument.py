@@ -91,10 +91,15 @@ def _validate_polar(name: str, values) -> np.ndarray:
     return v
 
 
-def _validate_aperture(name: str, value: float) -> float:
+def _validate_aperture(name: str, value: float, polar_deg=0.0) -> float:
+    """Aperture half-angle in [0, 20]° whose cone around every direction of `polar_deg` stays above the horizon."""
     value = float(value)
     if not (0.0 <= value <= 20.0):
         raise ValueError(f"{name} must lie in [0, 20] degrees, got {value!r}")
+    steepest = float(np.max(np.abs(np.asarray(polar_deg, dtype=float))))
+    if steepest + value >= 90.0:
+        raise ValueError(f"{name} must be below {90.0 - steepest:g}° here: its cone around the {steepest:g}° direction "
+                         f"would reach below the horizon, got {value!r}")
     return value
 
 
@@ -133,8 +138,8 @@ def ma98_geometry(
         detector_polar_deg=jnp.asarray(np.abs(signed)),
         detector_azimuth_deg=jnp.asarray(np.where(signed >= 0, 0.0, 180.0)),
         aspecular_deg=jnp.asarray(gamma),
-        illumination_aperture_deg=_validate_aperture("illumination_aperture_deg", illumination_aperture_deg),
-        detector_aperture_deg=_validate_aperture("detector_aperture_deg", detector_aperture_deg),
+        illumination_aperture_deg=_validate_aperture("illumination_aperture_deg", illumination_aperture_deg, theta_i),
+        detector_aperture_deg=_validate_aperture("detector_aperture_deg", detector_aperture_deg, signed),
     )
 
 
@@ -152,11 +157,16 @@ def custom_geometry(
     Detectors in the illumination plane get their aspecular angle; others get NaN.
     """
     theta_i = float(_validate_polar("illumination_polar_deg", illumination_polar_deg)[0])
+    if theta_i < 0:
+        raise ValueError(f"illumination_polar_deg must lie in [0, {MAX_POLAR_DEG}] (the side is set by "
+                         f"illumination_azimuth_deg), got {illumination_polar_deg!r}")
     det = _validate_polar("detector_polar_deg", detector_polar_deg)
     az = np.broadcast_to(np.asarray(detector_azimuth_deg, dtype=float), det.shape).copy()
-    if np.any(~np.isfinite(az)):
-        raise ValueError(f"detector_azimuth_deg must be finite, got {detector_azimuth_deg!r}")
+    if np.any(~np.isfinite(az)) or np.any(np.abs(az) > 720.0):
+        raise ValueError(f"detector_azimuth_deg must be finite, within ±720°, got {detector_azimuth_deg!r}")
     phi_i = float(illumination_azimuth_deg)
+    if not (np.isfinite(phi_i) and abs(phi_i) <= 720.0):
+        raise ValueError(f"illumination_azimuth_deg must be finite, within ±720°, got {illumination_azimuth_deg!r}")
     # Signed polar of each detector within the illumination plane (specular side positive).
     rel = np.mod(az - phi_i + 180.0, 360.0)
     in_plane = np.isclose(rel, 0.0) | np.isclose(rel, 360.0) | np.isclose(rel, 180.0) | (det == 0.0)
@@ -168,8 +178,8 @@ def custom_geometry(
         detector_polar_deg=jnp.asarray(det),
         detector_azimuth_deg=jnp.asarray(az),
         aspecular_deg=jnp.asarray(gamma),
-        illumination_aperture_deg=_validate_aperture("illumination_aperture_deg", illumination_aperture_deg),
-        detector_aperture_deg=_validate_aperture("detector_aperture_deg", detector_aperture_deg),
+        illumination_aperture_deg=_validate_aperture("illumination_aperture_deg", illumination_aperture_deg, theta_i),
+        detector_aperture_deg=_validate_aperture("detector_aperture_deg", detector_aperture_deg, det),
     )
 
 

@@ -24,6 +24,7 @@ With exit occlusion the model is reciprocal. The platelet BRDF is pluggable: any
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -37,10 +38,13 @@ from ._tilt import MAX_TILT_DEG, GammaTilt
 
 
 def check_coat_index(n) -> None:
+    """Raise unless the coat index n is a number in (1, 3] (a traced value is checked where it is concrete)."""
+    if isinstance(n, jax.core.Tracer):
+        return
     try:
         v = float(n)
     except (TypeError, ValueError):
-        return
+        raise ValueError(f"coat refractive index n must be a number in (1, 3], got {n!r}") from None
     if not (1.0 < v <= 3.0):
         raise ValueError(f"coat refractive index n must lie in (1, 3], got {n!r}")
 

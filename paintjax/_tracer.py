@@ -1,4 +1,4 @@
-"""Ray-batch Monte Carlo tracer of a platelet basecoat under a flat clearcoat: the virtual spectrophotometer.
+"""Ray-batch Monte Carlo tracer of a platelet basecoat under a flat or wavy clearcoat: the virtual spectrophotometer.
 
 Scene (paint frame, lengths in µm, brief §3/§7): Lambertian primer at z = 0 (albedo ρ), basecoat
 0 < z < h_b holding the platelet boxes of a `PlateletArray` (laterally periodic tile, looked up
@@ -16,9 +16,10 @@ Transport.
 * Optional clearcoat waviness (`waviness_deg`, RMS slope angle; `_interface`): every crossing of
   the surface (entry, internal reflection / exit, and each NEE direction) happens at a facet drawn
   from the visible-normal density of the Gaussian slope distribution (exact inversion, weight 1;
-  NEE draws from the slope distribution with the visible-area weight v G1). Reflection and refraction are about the facet; an
-  internal reflection that would still travel upward (grazing, rare) is mirrored down (multiple
-  facet scattering and masking are neglected, O(slope²)). Off by default.
+  NEE draws from the slope distribution with the visible-area weight v, which carries Smith's
+  masking G1). Reflection and refraction are about the facet; an internal reflection that would
+  still travel upward (grazing, rare) is mirrored down (multiple facet scattering and the masking
+  of exits are neglected: at grazing detectors exits exceed NEE by about 1/G1, see `_interface`). Off by default.
 * Platelet boxes (centre ± w/2 u ± w/2 v ± t/2 n) are intersected with a slab test. The face
   through which a ray enters decides the scattering normal: the top and bottom faces scatter with
   the platelet BRDF (importance sampled, weight f cos/pdf; the weight lost is the platelet
@@ -99,7 +100,7 @@ from jaxtyping import Array, Float, Int
 
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF, cosine_hemisphere
 from ._grid import build_grid
-from ._instrument import MAX_POLAR_DEG, Geometry, refract_into_coat
+from ._instrument import Geometry, refract_into_coat
 from ._lightness import reflectance_factor_to_lightness
 from ._interface import check_waviness, reflect, refract, sample_facet_normal, sample_visible_facet, seen_through_facet, slope_sd
 from ._microfacet import _orthonormal_basis, check_coat_index
@@ -118,7 +119,8 @@ class TracerOptions(eqx.Module):
         lanes: rays in flight per device.
         steps_per_call: steps per jit call (a step = one event or `cells_per_step` cells).
         cells_per_step: grid cells a ray may cross per step (≥ 2). Shadow rays get as many cells
-            as a ray toward any detector can cross in the basecoat, so they always finish.
+            as a ray toward any detector can cross in the basecoat (`_shadow_cell_bound`), so they
+            always finish.
         batches: groups of lanes for the batch-means standard errors (≥ 8).
         roulette_weight: Russian roulette below this weight (0 disables roulette).
         max_steps: steps after which a ray is capped (its weight goes to the ledger's caps).
@@ -282,14 +284,28 @@ def _pack_platelets(array, dtype, n_pad: int) -> tuple:
     return tuple(jnp.asarray(packed[:, k], dtype) for k in range(packed.shape[1]))
 
 
-def _shadow_cell_bound(shape, cell, h_b, n) -> int:
-    """Cells a ray toward any detector (polar ≤ 85° in air) crosses at most from inside the basecoat to its top.
+#: Steepest internal direction of a wavy coat's next-event estimate, as tan θ_in. A facet refracts an air
+#: direction to at most the critical angle from its normal, so only steep facets reach beyond the flat
+#: coat's tan θ_c = 0.894, at vanishing visible weight: at the largest waviness (15°) no weight lay
+#: beyond tan 2.84 for a detector at 85°, nor beyond 3.34 at 89.9° (2·10⁷ facets each). Directions
+#: beyond are not scored, which keeps every shadow ray within its cell budget.
+_WAVY_MAX_TAN_IN = 3.5
+_WAVY_MIN_COS_IN = float(1.0 / np.sqrt(1.0 + _WAVY_MAX_TAN_IN**2))
 
-    Fixed by the largest accepted detector angle, not by the geometry, so geometries share a compilation.
+
+def _shadow_cell_bound(shape, cell, h_b, n, wavy: bool) -> int:
+    """Cells a ray toward any detector crosses at most from inside the basecoat to its top.
+
+    Flat coat: any air direction refracts to within the critical angle (sin θ_in ≤ 1/n); wavy coat:
+    `_WAVY_MAX_TAN_IN`. Fixed by these bounds, not by the geometry, so geometries share a compilation.
     """
     nz = shape[2]
-    sin_in = np.sin(np.deg2rad(MAX_POLAR_DEG)) / n
-    lateral = h_b * sin_in / np.sqrt(1.0 - sin_in**2)
+    if wavy:
+        tan_in = _WAVY_MAX_TAN_IN
+    else:
+        sin_in = 1.0 / n
+        tan_in = sin_in / np.sqrt(1.0 - sin_in**2)
+    lateral = h_b * tan_in
     return int(nz + int(np.ceil(lateral / cell[0])) + int(np.ceil(lateral / cell[1])) + 1)
 
 
@@ -632,8 +648,8 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     if sc.wavy:  # the detector sees the visible facets m_j: v_j T(m_j) L_in(refraction of ω_j at m_j) / n²
         mj = sample_facet_normal(sc.slope_sd, uf[2 : 2 + m], uf[2 + m : 2 + 2 * m])
         w_in, To = seen_through_facet(w_air, mj, sc.n, sc.slope_sd)
-        To = jnp.where(w_in[:, 2] > 1e-6, To, 0.0)
-        w_in = w_in.at[:, 2].set(jnp.maximum(w_in[:, 2], 1e-6))
+        To = jnp.where(w_in[:, 2] > _WAVY_MIN_COS_IN, To, 0.0)  # beyond the shadow rays' cell budget (no weight there)
+        w_in = w_in.at[:, 2].set(jnp.maximum(w_in[:, 2], _WAVY_MIN_COS_IN))
     else:
         w_in = _refract_in(w_air, sc.n)
         To = 1.0 - fresnel_dielectric(w_air[:, 2], 1.0, sc.n)[2]
@@ -945,7 +961,7 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
         log_reverse_share=jnp.full((detectors.shape[0],), log_share, dtype),
         illum_in_z=arr(np.abs(src_in[:, 2])),
         max_cells=int(min_cells),
-        shadow_cells=_shadow_cell_bound(shape, cell, h_b, float(n)),
+        shadow_cells=_shadow_cell_bound(shape, cell, h_b, float(n), waviness_deg > 0.0),
         wavy=waviness_deg > 0.0,
         mis=bool(mis) and det_alpha > 0.0 and not waviness_deg > 0.0,
         bidir=share > 0,
@@ -1014,7 +1030,7 @@ def trace(
     options: TracerOptions | None = None,
     progress: Callable[[int, np.ndarray, float], None] | None = None,
 ) -> TraceResult:
-    """Trace rays through a platelet basecoat under a flat clearcoat; five-angle reflectance and L*.
+    """Trace rays through a platelet basecoat under a flat or wavy clearcoat; reflectance factor and L* per detector.
 
     Arguments:
         array: `PlateletArray` (centres, normals, axes_u, widths, thickness, tile, basecoat_thickness).

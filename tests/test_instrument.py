@@ -69,6 +69,27 @@ def test_bad_aperture_and_illumination():
         pj.ma98_geometry(0.0)
     with pytest.raises(ValueError, match="detector_polar_deg"):
         pj.custom_geometry(45.0, [95.0])
+    with pytest.raises(ValueError, match="illumination_polar_deg"):  # the side is the azimuth's: γ would be wrong
+        pj.custom_geometry(-45.0, [45.0])
+    for bad in (float("nan"), 1e300):
+        with pytest.raises(ValueError, match="illumination_azimuth_deg"):
+            pj.custom_geometry(45.0, [30.0], illumination_azimuth_deg=bad)
+        with pytest.raises(ValueError, match="detector_azimuth_deg"):
+            pj.custom_geometry(45.0, [30.0], [bad])
+
+
+def test_aperture_cones_stay_above_the_horizon():
+    """A cone around a steep direction must not reach below the horizon (where the NEE would fold
+    directions back up and the histogram can never score): polar + half-angle < 90°."""
+    pj.ma98_geometry(45.0, [-40.0], detector_aperture_deg=4.9)  # detector at 85°: 4.9° fits
+    with pytest.raises(ValueError, match="detector_aperture_deg must be below 5°"):
+        pj.ma98_geometry(45.0, [-40.0], detector_aperture_deg=20.0)
+    with pytest.raises(ValueError, match="illumination_aperture_deg"):
+        pj.custom_geometry(85.0, [30.0], illumination_aperture_deg=20.0)
+    with pytest.raises(ValueError, match="detector_aperture_deg"):
+        pj.custom_geometry(30.0, [80.0, 10.0], detector_aperture_deg=10.0)
+    g = pj.ma98_geometry(45.0, detector_aperture_deg=20.0)  # MA98's steepest detector is at 65°
+    assert g.detector_aperture_deg == 20.0
 
 
 def test_hemisphere_quadrature_integrates_isotropic_radiance():
