@@ -293,19 +293,15 @@ _WAVY_MAX_TAN_IN = 3.5
 _WAVY_MIN_COS_IN = float(1.0 / np.sqrt(1.0 + _WAVY_MAX_TAN_IN**2))
 
 
-def _shadow_cell_bound(shape, cell, h_b, n, wavy: bool) -> int:
-    """Cells a ray toward any detector crosses at most from inside the basecoat to its top.
+def _shadow_cell_bound(shape, cell, h_b, n) -> int:
+    """Cells a ray toward any detector through a flat coat crosses at most from inside the basecoat to its top.
 
-    Flat coat: any air direction refracts to within the critical angle (sin θ_in ≤ 1/n); wavy coat:
-    `_WAVY_MAX_TAN_IN`. Fixed by these bounds, not by the geometry, so geometries share a compilation.
+    Any air direction refracts to within the critical angle (sin θ_in ≤ 1/n); fixed by that bound, not
+    by the geometry, so geometries share a compilation. A wavy coat's steeper directions resume (`_shadows`).
     """
     nz = shape[2]
-    if wavy:
-        tan_in = _WAVY_MAX_TAN_IN
-    else:
-        sin_in = 1.0 / n
-        tan_in = sin_in / np.sqrt(1.0 - sin_in**2)
-    lateral = h_b * tan_in
+    sin_in = 1.0 / n
+    lateral = h_b * sin_in / np.sqrt(1.0 - sin_in**2)
     return int(nz + int(np.ceil(lateral / cell[0])) + int(np.ceil(lateral / cell[1])) + 1)
 
 
@@ -648,7 +644,7 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     if sc.wavy:  # the detector sees the visible facets m_j: v_j T(m_j) L_in(refraction of ω_j at m_j) / n²
         mj = sample_facet_normal(sc.slope_sd, uf[2 : 2 + m], uf[2 + m : 2 + 2 * m])
         w_in, To = seen_through_facet(w_air, mj, sc.n, sc.slope_sd)
-        To = jnp.where(w_in[:, 2] > _WAVY_MIN_COS_IN, To, 0.0)  # beyond the shadow rays' cell budget (no weight there)
+        To = jnp.where(w_in[:, 2] > _WAVY_MIN_COS_IN, To, 0.0)  # bounds the shadow rays' travel (no weight there)
         w_in = w_in.at[:, 2].set(jnp.maximum(w_in[:, 2], _WAVY_MIN_COS_IN))
     else:
         w_in = _refract_in(w_air, sc.n)
@@ -758,33 +754,36 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
 def _shadows(sc: _Scene, opt: TracerOptions, org, sh_dir, sh_lim, sh_val):
     """Trace the pending shadow rays of all lanes (compacted, in passes of a fixed buffer).
 
+    A shadow ray that uses up its cell budget (`_shadow_cell_bound`: only a wavy coat's steeper NEE
+    directions can) resumes where it stopped in a later pass, so every shadow ray is decided.
     Returns the NEE increment (lanes, m): the pending values of the visible shadow rays.
     """
     B, m = sh_val.shape
     total = B * m
     S = max(1, min(total, int(round(opt.shadow_buffer * total))))
-    active = (sh_val > 0).reshape(-1)
-    rank = jnp.cumsum(active.astype(jnp.int32)) - 1
-    count = jnp.sum(active.astype(jnp.int32))
     dirs = sh_dir.reshape(-1, 3)
-    lims = sh_lim.reshape(-1)
+    # passes: ceil(total / S) for the first leg of every ray, and as many again per resumption (a
+    # ray of tan θ ≤ _WAVY_MAX_TAN_IN needs at most ⌈_WAVY_MAX_TAN_IN / tan θ_c⌉ legs); a guard only
+    legs = jnp.ceil(_WAVY_MAX_TAN_IN * jnp.sqrt(jnp.maximum(sc.n**2 - 1.0, 1e-12))) + 1.0 if sc.wavy else 1.0
+    max_passes = jnp.asarray(legs * (-(-total // S)) + 1).astype(jnp.int32)
 
     def cond(c):
-        return c[0] * S < count
+        return jnp.any(c[2]) & (c[0] < max_passes)
 
     def body(c):
-        r, vis = c
-        sel = active & (rank // S == r)
-        idx = jnp.nonzero(sel, size=S, fill_value=total)[0]
+        it, orgs, pending, lims, vis = c
+        idx = jnp.nonzero(pending, size=S, fill_value=total)[0]
         ok = idx < total
         j = jnp.minimum(idx, total - 1)
-        lim = lims[j]
-        tb, _, _, _, fin = jax.vmap(lambda a, b, c_: _traverse(sc, a, b, c_, True, sc.shadow_cells))(org[j // m], dirs[j], lim)
-        seen = ok & fin & (tb >= lim)
-        vis = vis.at[idx].max(seen, mode="drop")
-        return r + 1, vis
+        tb, _, _, reach, fin = jax.vmap(lambda a, b, c_: _traverse(sc, a, b, c_, True, sc.shadow_cells))(orgs[j], dirs[j], lims[j])
+        vis = vis.at[idx].max(ok & fin & (tb >= lims[j]), mode="drop")
+        pending = pending.at[idx].set(~fin, mode="drop")  # unfinished: no occluder so far, resume at the reach
+        orgs = orgs.at[idx].set(orgs[j] + reach[:, None] * dirs[j], mode="drop")
+        lims = lims.at[idx].set(lims[j] - reach, mode="drop")
+        return it + 1, orgs, pending, lims, vis
 
-    _, vis = jax.lax.while_loop(cond, body, (jnp.asarray(0, jnp.int32), jnp.zeros(total, bool)))
+    init = (jnp.asarray(0, jnp.int32), jnp.repeat(org, m, axis=0), (sh_val > 0).reshape(-1), sh_lim.reshape(-1), jnp.zeros(total, bool))
+    vis = jax.lax.while_loop(cond, body, init)[-1]
     return jnp.where(vis.reshape(B, m), sh_val, 0.0)
 
 
@@ -961,7 +960,7 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
         log_reverse_share=jnp.full((detectors.shape[0],), log_share, dtype),
         illum_in_z=arr(np.abs(src_in[:, 2])),
         max_cells=int(min_cells),
-        shadow_cells=_shadow_cell_bound(shape, cell, h_b, float(n), waviness_deg > 0.0),
+        shadow_cells=_shadow_cell_bound(shape, cell, h_b, float(n)),
         wavy=waviness_deg > 0.0,
         mis=bool(mis) and det_alpha > 0.0 and not waviness_deg > 0.0,
         bidir=share > 0,
