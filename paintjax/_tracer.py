@@ -119,8 +119,8 @@ class TracerOptions(eqx.Module):
         lanes: rays in flight per device.
         steps_per_call: steps per jit call (a step = one event or `cells_per_step` cells).
         cells_per_step: grid cells a ray may cross per step (≥ 2). Shadow rays get as many cells
-            as a ray toward any detector can cross in the basecoat (`_shadow_cell_bound`), so they
-            always finish.
+            as a ray toward any detector through a flat coat can cross in the basecoat
+            (`_shadow_cell_bound`); a wavy coat's steeper ones resume where they stopped.
         batches: groups of lanes for the batch-means standard errors (≥ 8).
         roulette_weight: Russian roulette below this weight (0 disables roulette).
         max_steps: steps after which a ray is capped (its weight goes to the ledger's caps).
@@ -288,7 +288,7 @@ def _pack_platelets(array, dtype, n_pad: int) -> tuple:
 #: direction to at most the critical angle from its normal, so only steep facets reach beyond the flat
 #: coat's tan θ_c = 0.894, at vanishing visible weight: at the largest waviness (15°) no weight lay
 #: beyond tan 2.84 for a detector at 85°, nor beyond 3.34 at 89.9° (2·10⁷ facets each). Directions
-#: beyond are not scored, which keeps every shadow ray within its cell budget.
+#: beyond are not scored, which bounds a shadow ray's travel and so its resumptions (`_shadows`).
 _WAVY_MAX_TAN_IN = 3.5
 _WAVY_MIN_COS_IN = float(1.0 / np.sqrt(1.0 + _WAVY_MAX_TAN_IN**2))
 

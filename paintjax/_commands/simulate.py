@@ -79,7 +79,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "simulate",
         help="ray-trace a sample's microstructure: five-angle L* with standard errors",
-        description="Ray-batch Monte Carlo through a generated platelet array under a flat clearcoat, seen by a virtual "
+        description="Ray-batch Monte Carlo through a generated platelet array under a clearcoat (flat unless --waviness), seen by a virtual "
         "multi-angle spectrophotometer (default: 45° illumination, aspecular 15, 25, 45, 75, 110°; MA98's other angles "
         "with --illumination and --aspecular). Lengths in µm, angles in degrees.",
     )
