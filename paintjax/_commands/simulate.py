@@ -328,8 +328,9 @@ def _plot(r: dict, folder) -> str:
     fig, ax = plt.subplots(figsize=(5.5, 4.2))
     gamma = np.asarray(r["aspecular_deg"])
     if r["measured_L_star"] is not None:
-        ax.errorbar(gamma, r["measured_L_star"], yerr=0.3 if r["inputs"]["measured"] is None else None, fmt="ko",
-                    label=f"measured {r['sample']}" if r["inputs"]["measured"] is None else "measured (given)")
+        published = r["inputs"]["measured"] is None  # the sample's values, with the instrument's repeatability
+        ax.errorbar(gamma, r["measured_L_star"], yerr=0.3 if published else None, fmt="ko",
+                    label=f"measured {r['sample']}" if published else "measured (given)")
     ax.errorbar(gamma, r["L_star"], yerr=r["L_star_se"], fmt="s-", color="C0", label=f"tracer, {r['brdf']} platelets ({r['rays']} rays)")
     ax.set_xlabel("aspecular angle [deg]")
     ax.set_ylabel("L*")
