@@ -61,7 +61,7 @@ def main(argv=None) -> dict:
     arrays, info = platelet_table_arrays(SIGMA, TAU, source=args.source, wavelength_um=WAVELENGTH, n_medium=N,
                                          num_profiles=args.profiles, length_um=20.0, seed=0, cache_dir=args.cache_dir)
     build_s = time.perf_counter() - t0
-    table = TabulatedBRDF.from_arrays(arrays, coherent_width=coherent_lobe_width(WAVELENGTH, N, 16.0))
+    table = TabulatedBRDF.from_arrays(arrays, coherent_width=coherent_lobe_width(WAVELENGTH, N, 16.0), n_medium=N)
     kirch = BeckmannBRDF(SIGMA, TAU, wavelength_um=WAVELENGTH, n_medium=N)
 
     def in_plane(brdf, inc):

@@ -296,6 +296,10 @@ class AbstractGaussianMetalBRDF(AbstractLobeBRDF):
         self.num_terms = series_terms(2.0 * self.k * self.sigma_um)
 
     @property
+    def medium_index(self):
+        return self.n_medium
+
+    @property
     def k(self) -> float:
         """Wavenumber in the medium [1/µm]."""
         return 2.0 * np.pi * self.n_medium / self.wavelength_um

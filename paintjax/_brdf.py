@@ -65,6 +65,11 @@ class AbstractPlateletBRDF(eqx.Module):
     def albedo(self, cos_i: Float[Array, "..."]) -> Float[Array, "..."]:
         """Directional-hemispherical reflectance ∫ f cosθ_o dω_o."""
 
+    @property
+    @abc.abstractmethod
+    def medium_index(self) -> float | None:
+        """Real index of the medium above the platelet that the BRDF was built for (None: any)."""
+
 
 class MirrorBRDF(AbstractPlateletBRDF):
     """Smooth metal platelet: a mirror with the Fresnel reflectance of a metal in the binder.
@@ -107,6 +112,10 @@ class MirrorBRDF(AbstractPlateletBRDF):
     def albedo(self, cos_i):
         return self.fresnel(cos_i)
 
+    @property
+    def medium_index(self):
+        return self.n_binder
+
 
 class LambertianBRDF(AbstractPlateletBRDF):
     """Diffuse (Lambertian) platelet faces of albedo a: f = a/π, exactly importance sampled.
@@ -141,3 +150,7 @@ class LambertianBRDF(AbstractPlateletBRDF):
 
     def albedo(self, cos_i):
         return jnp.broadcast_to(self.albedo_value, jnp.shape(cos_i))
+
+    @property
+    def medium_index(self):
+        return None  # a reference BRDF, not tied to a medium

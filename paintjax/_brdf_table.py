@@ -500,7 +500,8 @@ class TabulatedBRDF(AbstractLobeBRDF):
     Fields (arrays over tabulated incidences J and basis widths K): incidence_deg (J,), widths (K,),
     coef (J, K) lobe coefficients C_j, proposal_coef (J, K) unit-mass sampling lobes, scale (J,)
     symmetric normalisation a, coherent_reflectance_table, incoherent_reflectance_table, absorbed,
-    outside_fraction (J,).
+    outside_fraction (J,); static n_medium, the binder index the lobes were computed in (None:
+    not recorded, so the tracer cannot check it against the coat index).
     """
 
     incidence_deg: Float[Array, " J"]
@@ -514,10 +515,14 @@ class TabulatedBRDF(AbstractLobeBRDF):
     outside_fraction: Float[Array, " J"]
     coherent: str = eqx.field(static=True)
     coherent_width: float = eqx.field(static=True)
+    n_medium: float | None = eqx.field(static=True)
 
-    def __init__(self, incidence_deg, widths, coef, proposal_coef, scale, coherent_reflectance_table, incoherent_reflectance_table, absorbed, outside_fraction, *, coherent="lobe", coherent_width=0.0083):
+    def __init__(self, incidence_deg, widths, coef, proposal_coef, scale, coherent_reflectance_table, incoherent_reflectance_table, absorbed, outside_fraction, *, coherent="lobe", coherent_width=0.0083, n_medium=None):
         check_coherent(coherent)
         check_positive("coherent_width", coherent_width, 1.0)
+        if n_medium is not None:
+            check_positive("n_medium", n_medium, 5.0)
+        self.n_medium = None if n_medium is None else float(n_medium)
         self.incidence_deg, self.widths, self.coef, self.scale = incidence_deg, widths, coef, scale
         self.proposal_coef = proposal_coef
         self.coherent_reflectance_table, self.incoherent_reflectance_table = coherent_reflectance_table, incoherent_reflectance_table
@@ -525,13 +530,17 @@ class TabulatedBRDF(AbstractLobeBRDF):
         self.coherent, self.coherent_width = coherent, float(coherent_width)
 
     @classmethod
-    def from_arrays(cls, arrays: dict, *, coherent: str = "lobe", coherent_width: float = 0.0083) -> "TabulatedBRDF":
-        """A table from the arrays of `platelet_table_arrays` (e.g. read from the cache)."""
+    def from_arrays(cls, arrays: dict, *, coherent: str = "lobe", coherent_width: float = 0.0083, n_medium: float | None = None) -> "TabulatedBRDF":
+        """A table from the arrays of `platelet_table_arrays` (e.g. read from the cache), built in a binder of index `n_medium`."""
         f = lambda key: jnp.asarray(np.asarray(arrays[key], float))  # noqa: E731
         return cls(
             f("incidence_deg"), f("widths"), f("coef"), f("proposal_coef"), f("scale"), f("coherent_reflectance"), f("incoherent_reflectance"),
-            f("absorbed"), f("outside_fraction"), coherent=coherent, coherent_width=coherent_width,
+            f("absorbed"), f("outside_fraction"), coherent=coherent, coherent_width=coherent_width, n_medium=n_medium,
         )
+
+    @property
+    def medium_index(self):
+        return self.n_medium
 
     @property
     def mu_nodes(self):
@@ -607,7 +616,7 @@ def table_from_lobes(
     arrays = _table_arrays_from_lobes(lobes, method=method, num_widths=num_widths, min_width=min_width)
     if coherent_width is None:
         coherent_width = coherent_lobe_width(wavelength_um, n_medium, platelet_width_um)
-    return TabulatedBRDF.from_arrays(arrays, coherent=coherent, coherent_width=coherent_width)
+    return TabulatedBRDF.from_arrays(arrays, coherent=coherent, coherent_width=coherent_width, n_medium=n_medium)
 
 
 def wave_lobes(sigma_um, tau_um, *, num_profiles: int = 10, seed: int = 0, length_um: float = 20.0, correlation: str = "gaussian", points_per_wavelength=None, **kwargs):
@@ -771,7 +780,7 @@ def platelet_brdf_table(
     arrays, _ = platelet_table_arrays(sigma_um, tau_um, **kwargs)
     if coherent_width is None:
         coherent_width = coherent_lobe_width(kwargs.get("wavelength_um", 0.5), kwargs.get("n_medium", 1.5), platelet_width_um)
-    return TabulatedBRDF.from_arrays(arrays, coherent=coherent, coherent_width=coherent_width)
+    return TabulatedBRDF.from_arrays(arrays, coherent=coherent, coherent_width=coherent_width, n_medium=kwargs.get("n_medium", 1.5))
 
 
 # ---------------------------------------------------------------------------------------- grid
@@ -813,7 +822,7 @@ class BRDFTableGrid(eqx.Module):
     """Tables over a (σ, τ) grid, geometric in both, with smooth interpolation `at(σ, τ)`.
 
     Fields: sigma_um, tau_um (static tuples of node values [µm]), stacked (dict of arrays with leading (Ns, Nt)),
-    incidence_deg, widths; static coherent mode and width.
+    incidence_deg, widths; static coherent mode and width, and the binder index n_medium.
     """
 
     sigma_um: tuple = eqx.field(static=True)
@@ -823,6 +832,7 @@ class BRDFTableGrid(eqx.Module):
     widths: Float[Array, " K"]
     coherent: str = eqx.field(static=True)
     coherent_width: float = eqx.field(static=True)
+    n_medium: float = eqx.field(static=True)
 
     def _position(self, value, nodes, name):
         n = len(nodes)
@@ -856,7 +866,7 @@ class BRDFTableGrid(eqx.Module):
         return TabulatedBRDF(
             self.incidence_deg, self.widths, out["coef"], out["proposal_coef"], out["scale"], out["coherent_reflectance_table"],
             out["incoherent_reflectance_table"], out["absorbed"], out["outside_fraction"],
-            coherent=self.coherent, coherent_width=self.coherent_width,
+            coherent=self.coherent, coherent_width=self.coherent_width, n_medium=self.n_medium,
         )
 
 
@@ -889,4 +899,5 @@ def platelet_brdf_grid(
                for name, key in zip(_GRID_FIELDS, ("coef", "proposal_coef", "scale", "coherent_reflectance", "incoherent_reflectance", "absorbed", "outside_fraction"))}
     if coherent_width is None:
         coherent_width = coherent_lobe_width(kwargs.get("wavelength_um", 0.5), kwargs.get("n_medium", 1.5), platelet_width_um)
-    return BRDFTableGrid(tuple(float(v) for v in s), tuple(float(v) for v in t), stacked, jnp.asarray(tables[0][0]["incidence_deg"]), jnp.asarray(tables[0][0]["widths"]), coherent, float(coherent_width))
+    return BRDFTableGrid(tuple(float(v) for v in s), tuple(float(v) for v in t), stacked, jnp.asarray(tables[0][0]["incidence_deg"]), jnp.asarray(tables[0][0]["widths"]), coherent, float(coherent_width),
+                         float(kwargs.get("n_medium", 1.5)))

@@ -195,6 +195,10 @@ class CoherentMirrorBRDF(AbstractPlateletBRDF):
         self.wavelength_um = float(wavelength_um)
         self.metal_index = _metal_index(wavelength_um) if metal_index is None else complex(metal_index)
 
+    @property
+    def medium_index(self):
+        return self.n_binder
+
     def albedo(self, cos_i):
         k = 2.0 * jnp.pi * self.n_binder / self.wavelength_um
         c = jnp.abs(cos_i)
@@ -248,6 +252,10 @@ class AbstractTracedLobeBRDF(AbstractPlateletBRDF):
         self.n_binder = float(n_binder)
         self.wavelength_um = float(wavelength_um)
         self.metal_index = _metal_index(wavelength_um) if metal_index is None else complex(metal_index)
+
+    @property
+    def medium_index(self):
+        return self.n_binder
 
     def sample(self, key, wi):  # not needed by the analytic model
         raise NotImplementedError(f"{type(self).__name__} is evaluated by quadrature only; use _beckmann.BeckmannBRDF to sample")

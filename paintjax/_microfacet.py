@@ -49,6 +49,20 @@ def check_coat_index(n) -> None:
         raise ValueError(f"coat refractive index n must lie in (1, 3], got {n!r}")
 
 
+def check_platelet_medium(platelet: AbstractPlateletBRDF, n) -> None:
+    """Raise if the platelet BRDF was built for another binder index than the coat index n.
+
+    The binder and the clearcoat share one index (no optical interface between them, BRIEF §2), so
+    a platelet BRDF computed in a binder of index n_b only fits a coat of index n = n_b. BRDFs that
+    record no medium (`medium_index` None) and traced n are not checked."""
+    nb = platelet.medium_index
+    if nb is None or isinstance(n, jax.core.Tracer):
+        return
+    if not abs(float(nb) - float(n)) <= 1e-6 * float(n):
+        raise ValueError(f"platelet BRDF was built for a binder of index {float(nb):g}, but the coat index n is {float(n):g}; "
+                         f"rebuild the BRDF with that index (n_binder / n_medium = {float(n):g}) or set n = {float(nb):g}")
+
+
 def _orthonormal_basis(m: Float[Array, "... 3"]):
     """Two tangents completing m to a right-handed frame (Frisvad/Duff, branchless)."""
     sign = jnp.where(m[..., 2] >= 0, 1.0, -1.0)
@@ -172,6 +186,7 @@ def microfacet_reflectance_factor(
     check_coat_index(n)
     if platelet is None:
         platelet = MirrorBRDF(n_binder=n)
+    check_platelet_medium(platelet, n)
     wi_air = cone_directions(geometry.illumination_air(), geometry.illumination_aperture_deg, aperture_nodes)
     wo_air = cone_directions(geometry.detectors_air(), geometry.detector_aperture_deg, aperture_nodes)
     wi_air, wi_w = wi_air

@@ -33,7 +33,7 @@ import numpy as np
 
 from ._brdf import MirrorBRDF
 from ._instrument import Geometry, refract_into_coat
-from ._microfacet import check_coat_index
+from ._microfacet import check_coat_index, check_platelet_medium
 from ._optics import fresnel_dielectric
 from ._tracer import _rotz, _traverse, build_scene  # the tracer's rotation and its validated grid walk
 
@@ -105,6 +105,7 @@ def tile_mirror_single_scatter(array, geometry: Geometry, mirror: MirrorBRDF, gr
         if not (isinstance(value, (int, np.integer)) and value >= low):
             raise ValueError(f"{name} must be an integer ≥ {low}, got {value!r}")
     check_coat_index(n)
+    check_platelet_medium(mirror, n)
     if jnp.asarray(0.0).dtype != jnp.float64:  # the face offsets and walk decisions need it
         raise RuntimeError("tile_mirror_single_scatter needs float64: call jax.config.update('jax_enable_x64', True) first")
     Lx, Ly = (float(x) for x in array.tile)

@@ -103,7 +103,7 @@ from ._grid import build_grid
 from ._instrument import Geometry, refract_into_coat
 from ._lightness import reflectance_factor_to_lightness
 from ._interface import check_waviness, reflect, refract, sample_facet_normal, sample_visible_facet, seen_through_facet, slope_sd
-from ._microfacet import _orthonormal_basis, check_coat_index
+from ._microfacet import _orthonormal_basis, check_coat_index, check_platelet_medium
 from ._optics import fresnel_dielectric
 
 #: Keys of the energy ledger, in order.
@@ -1070,6 +1070,7 @@ def trace(
     brdf = MirrorBRDF(n_binder=n) if brdf is None else brdf
     if not isinstance(brdf, AbstractPlateletBRDF):
         raise ValueError(f"brdf must be an AbstractPlateletBRDF, got {type(brdf).__name__}")
+    check_platelet_medium(brdf, n)
     if _has_delta(brdf) and geometry.detector_aperture_deg <= 0:
         raise ValueError("geometry.detector_aperture_deg must be > 0 for a platelet BRDF with a delta (mirror or "
                          "coherent='delta') part: a delta sends nothing into an exact direction")

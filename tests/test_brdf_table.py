@@ -9,7 +9,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from paintjax import BeckmannBRDF, TabulatedBRDF, kirchhoff_lobes, platelet_brdf_grid, platelet_table_arrays, table_from_lobes
+from paintjax import (BeckmannBRDF, TabulatedBRDF, kirchhoff_lobes, platelet_brdf_grid, platelet_brdf_table, platelet_table_arrays,
+                      table_from_lobes)
 
 SIGMA, TAU = 0.051, 0.64  # kσ ≈ 0.96, kτ ≈ 12 in the binder at λ0 = 0.5 µm: the Kirchhoff regime
 
@@ -124,6 +125,16 @@ def test_grid_interpolation_smooth_and_differentiable(tmp_path):
     np.testing.assert_allclose(np.asarray(at_eval(0.05, 0.62)), np.asarray(mid.evaluate(wi, wo)), rtol=0.05)
     with pytest.raises(ValueError, match="sigma_um"):
         grid.at(0.1, 0.6)
+    assert grid.at(0.05, 0.6).medium_index == 1.5  # the binder index travels with the grid's tables
+
+
+def test_tables_record_their_binder_index(tmp_path):
+    """The tracer checks a table's binder index against the coat's; every builder records it."""
+    lobes = tables()[0]
+    assert tables()[1].medium_index == 1.5 and table_from_lobes(lobes, n_medium=1.6).medium_index == 1.6
+    kw = dict(source="kirchhoff", incidence_deg=[0.0, 30.0, 60.0, 80.0], theta_s_deg=np.linspace(-89.5, 89.5, 179), cache_dir=tmp_path)
+    assert platelet_brdf_table(SIGMA, TAU, n_medium=1.55, **kw).medium_index == 1.55
+    assert TabulatedBRDF.from_arrays(platelet_table_arrays(SIGMA, TAU, **kw)[0]).medium_index is None  # not recorded: unchecked
 
 
 def test_builder_validates_input():

@@ -121,6 +121,10 @@ class _NarrowLobe(pj.AbstractPlateletBRDF):
     def albedo(self, cos_i):
         return jnp.ones_like(cos_i)
 
+    @property
+    def medium_index(self):
+        return None  # a lossless test lobe, not tied to a binder
+
 
 def test_pluggable_platelet_brdf_tends_to_the_mirror():
     g = pj.ma98_geometry(45.0, [15.0, 25.0, 45.0])
@@ -145,6 +149,19 @@ def test_bad_inputs():
         pj.MirrorBRDF(reflectance=1.2)
     with pytest.raises(ValueError, match="coat refractive index"):
         pj.microfacet_reflectance_factor(pj.ma98_geometry(), pj.GammaTilt(2, 2), n=0.9)
+
+
+def test_platelet_brdf_must_be_built_for_the_coat_index():
+    """Binder and clearcoat share one index: a platelet BRDF made in n_b = 1.5 does not fit a 1.6 coat."""
+    geo, tilt = pj.ma98_geometry(), pj.GammaTilt(2.29, 2.18)
+    with pytest.raises(ValueError, match=r"built for a binder of index 1.5, but the coat index n is 1.6"):
+        pj.microfacet_reflectance_factor(geo, tilt, n=1.6, platelet=pj.MirrorBRDF(n_binder=1.5))
+    with pytest.raises(ValueError, match="binder of index 1.5"):
+        pj.microfacet_reflectance_factor(geo, tilt, n=1.6, platelet=pj.BeckmannBRDF(0.051, 0.64))
+    matched = np.asarray(pj.microfacet_reflectance_factor(geo, tilt, n=1.6, platelet=pj.MirrorBRDF(n_binder=1.6)))
+    default = np.asarray(pj.microfacet_reflectance_factor(geo, tilt, n=1.6))  # the default mirror takes the coat's index
+    np.testing.assert_array_equal(matched, default)
+    assert pj.LambertianBRDF(0.5).medium_index is None  # a reference BRDF is not checked
 
 
 def test_side_walls_projected_area():

@@ -49,7 +49,7 @@ def compute(sigma=0.051, tau=0.64, wavelength=0.5, n=1.5, profiles=10, length=20
         sigma, tau, source=source, wavelength_um=wavelength, n_medium=n, num_profiles=profiles, length_um=length,
         seed=seed, method=method, cache=cache, cache_dir=cache_dir,
     )
-    table = TabulatedBRDF.from_arrays(arrays, coherent_width=coherent_lobe_width(wavelength, n, 16.0))
+    table = TabulatedBRDF.from_arrays(arrays, coherent_width=coherent_lobe_width(wavelength, n, 16.0), n_medium=n)
     inc = np.asarray(CUT_INCIDENCE_DEG)
     cuts = np.asarray(table.in_plane(inc, THETA_O_DEG))
     refl = np.asarray(table.albedo(jnp.cos(jnp.deg2rad(inc))))
