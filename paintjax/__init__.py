@@ -42,7 +42,7 @@ from ._lightness import (
 )
 from ._hot_spot import HotSpot
 from ._microfacet import microfacet_lightness, microfacet_reflectance_factor, single_scatter_brdf
-from ._grid import UniformGrid, build_grid, candidate_pairs
+from ._grid import UniformGrid, build_grid, candidate_pairs, check_grid_matches
 from ._microstructure import (
     GenerationLog,
     PlateletArray,

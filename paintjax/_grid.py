@@ -149,6 +149,38 @@ def _enumerate_ranges(lo: np.ndarray, span: np.ndarray):
     return owner, lo[owner, 0] + ix, lo[owner, 1] + iy, lo[owner, 2] + iz
 
 
+def check_grid_matches(array, grid) -> None:
+    """Raise unless `grid` is a cell list of `array`: same tile and basecoat (where the grid records
+    them), indices inside the array, and every platelet listed in the cell of its centre.
+
+    Catches a grid built for another array (another seed, size or tile), which would otherwise
+    trace the wrong platelets or read past the platelet table. O(platelets × capacity)."""
+    cells = np.asarray(grid.cell_platelets)
+    shape = tuple(int(v) for v in grid.shape)
+    n = int(np.asarray(array.widths).reshape(-1).shape[0])
+    if cells.ndim != 2 or cells.shape[0] != int(np.prod(shape)):
+        raise ValueError(f"grid.cell_platelets must have shape (nx*ny*nz, capacity), got {cells.shape} for shape {shape}")
+    tile = tuple(float(v) for v in array.tile)
+    h_b = float(array.basecoat_thickness)
+    if getattr(grid, "tile", None) is not None and not np.allclose(grid.tile, tile, rtol=1e-9, atol=0.0):
+        raise ValueError(f"grid was built for a {tuple(grid.tile)} µm tile, but the array's tile is {tile} µm: rebuild the grid")
+    if getattr(grid, "basecoat_thickness", None) is not None and not np.isclose(grid.basecoat_thickness, h_b, rtol=1e-9, atol=0.0):
+        raise ValueError(f"grid was built for a basecoat of {grid.basecoat_thickness:g} µm, but the array's is {h_b:g} µm: rebuild the grid")
+    if cells.size and int(cells.max()) >= n:
+        raise ValueError(f"grid lists platelet {int(cells.max())}, but the array has {n} platelets: rebuild the grid")
+    if n == 0:
+        return
+    c = np.asarray(array.centers, float).reshape(-1, 3)
+    d = np.array([tile[0] / shape[0], tile[1] / shape[1], h_b / shape[2]])
+    ix = np.floor(np.mod(c[:, 0], tile[0]) / d[0]).astype(np.int64) % shape[0]
+    iy = np.floor(np.mod(c[:, 1], tile[1]) / d[1]).astype(np.int64) % shape[1]
+    iz = np.clip(np.floor(c[:, 2] / d[2]).astype(np.int64), 0, shape[2] - 1)
+    listed = np.any(cells[(ix * shape[1] + iy) * shape[2] + iz] == np.arange(n)[:, None], axis=1)
+    if not np.all(listed):
+        raise ValueError(f"grid does not list {int(np.sum(~listed))} of the array's {n} platelets in the cells of their "
+                         "centres: it was built for another array (or overflowed); rebuild it with build_grid(array)")
+
+
 def build_grid(array, cell_size=None, capacity: int | None = None, pad: float = 1e-3) -> UniformGrid:
     """Build the uniform grid of a `PlateletArray` (NumPy, exact box–cell tests).
 

@@ -154,13 +154,18 @@ def custom_geometry(
 ) -> Geometry:
     """User-defined geometry: any illumination and detector directions (polar, azimuth in degrees).
 
-    Detectors in the illumination plane get their aspecular angle; others get NaN.
+    Detectors in the illumination plane get their aspecular angle; others get NaN. Under normal
+    illumination every detector lies in a plane with the source, and its aspecular angle is
+    −θ_detector (beyond the specular direction, the normal).
     """
     theta_i = float(_validate_polar("illumination_polar_deg", illumination_polar_deg)[0])
     if theta_i < 0:
         raise ValueError(f"illumination_polar_deg must lie in [0, {MAX_POLAR_DEG}] (the side is set by "
                          f"illumination_azimuth_deg), got {illumination_polar_deg!r}")
     det = _validate_polar("detector_polar_deg", detector_polar_deg)
+    if np.any(det < 0):
+        raise ValueError(f"detector_polar_deg must lie in [0, {MAX_POLAR_DEG}] (the side is set by "
+                         f"detector_azimuth_deg), got {detector_polar_deg!r}")
     az = np.broadcast_to(np.asarray(detector_azimuth_deg, dtype=float), det.shape).copy()
     if np.any(~np.isfinite(az)) or np.any(np.abs(az) > 720.0):
         raise ValueError(f"detector_azimuth_deg must be finite, within ±720°, got {detector_azimuth_deg!r}")
@@ -169,7 +174,7 @@ def custom_geometry(
         raise ValueError(f"illumination_azimuth_deg must be finite, within ±720°, got {illumination_azimuth_deg!r}")
     # Signed polar of each detector within the illumination plane (specular side positive).
     rel = np.mod(az - phi_i + 180.0, 360.0)
-    in_plane = np.isclose(rel, 0.0) | np.isclose(rel, 360.0) | np.isclose(rel, 180.0) | (det == 0.0)
+    in_plane = np.isclose(rel, 0.0) | np.isclose(rel, 360.0) | np.isclose(rel, 180.0) | (det == 0.0) | (theta_i == 0.0)
     signed = np.where(np.isclose(rel, 180.0), -det, det)
     gamma = np.where(in_plane, theta_i - signed, np.nan)
     return Geometry(

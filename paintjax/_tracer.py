@@ -76,7 +76,8 @@ periodic in x, y; slab tests written per component over per-column gathers, the 
 lane whose ray has ended is refilled at the next step with the next ray id (prefix sum over the
 dead lanes), so lanes stay busy until the pool drains. Shadow rays are deferred by one step:
 the active ones of all lanes are compacted into a buffer and traced together (any-hit, with a
-cell budget that always reaches the top), so their cost follows the number of useful shadow
+cell budget that reaches the top within the flat coat's critical angle; a wavy coat's steeper
+rays resume in later passes), so their cost follows the number of useful shadow
 rays, not lanes × detectors. Shapes are static and padded to buckets, and the grid dimensions
 are traced values: no recompilation between calls or between similar arrays. Each ray draws its random numbers from a counter-based hash of
 (seed, ray id, step) (an integer finaliser, far cheaper to compile and run than threefry per
@@ -99,7 +100,7 @@ from jax.sharding import Mesh, PartitionSpec
 from jaxtyping import Array, Float, Int
 
 from ._brdf import AbstractPlateletBRDF, MirrorBRDF, cosine_hemisphere
-from ._grid import build_grid
+from ._grid import build_grid, check_grid_matches
 from ._instrument import Geometry, refract_into_coat
 from ._lightness import reflectance_factor_to_lightness
 from ._interface import check_waviness, reflect, refract, sample_facet_normal, sample_visible_facet, seen_through_facet, slope_sd
@@ -263,7 +264,7 @@ class _Scene(eqx.Module):
     log_reverse_share: Float[Array, "m"]  # bidirectional MIS: log(reverse rays / forward rays) per detector (−inf: off)
     illum_in_z: Float[Array, " P"]  # |z| of the refracted source directions (projected-area factor of the beam)
     max_cells: int = eqx.field(static=True)  # budget of a ray's step
-    shadow_cells: int = eqx.field(static=True)  # budget of a shadow ray (always enough)
+    shadow_cells: int = eqx.field(static=True)  # budget of a shadow ray's leg (enough within the flat coat's critical angle)
     wavy: bool = eqx.field(static=True, default=False)  # draw facet normals at the clearcoat surface
     mis: bool = eqx.field(static=True, default=False)  # NEE + BRDF-sampled exits, balance heuristic
     bidir: bool = eqx.field(static=True, default=False)  # NEE weighted against the reverse (detector-side) tracer
@@ -763,7 +764,9 @@ def _shadows(sc: _Scene, opt: TracerOptions, org, sh_dir, sh_lim, sh_val):
     S = max(1, min(total, int(round(opt.shadow_buffer * total))))
     dirs = sh_dir.reshape(-1, 3)
     # passes: ceil(total / S) for the first leg of every ray, and as many again per resumption (a
-    # ray of tan θ ≤ _WAVY_MAX_TAN_IN needs at most ⌈_WAVY_MAX_TAN_IN / tan θ_c⌉ legs); a guard only
+    # ray of tan θ ≤ _WAVY_MAX_TAN_IN needs at most ⌈_WAVY_MAX_TAN_IN / tan θ_c⌉ legs, 3 for n = 1.5
+    # against the 5 allowed). A guard against a runaway loop only: a ray still pending when it
+    # stops would count as occluded, which the leg bound rules out
     legs = jnp.ceil(_WAVY_MAX_TAN_IN * jnp.sqrt(jnp.maximum(sc.n**2 - 1.0, 1e-12))) + 1.0 if sc.wavy else 1.0
     max_passes = jnp.asarray(legs * (-(-total // S)) + 1).astype(jnp.int32)
 
@@ -920,11 +923,10 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
     h_b = float(array.basecoat_thickness)
     shape = tuple(int(s) for s in grid.shape)
     cell = np.array([Lx / shape[0], Ly / shape[1], h_b / shape[2]])
+    check_grid_matches(array, grid)
     cells = np.asarray(grid.cell_platelets)
     n_pl = int(np.asarray(array.widths).reshape(-1).shape[0])
     ncell = shape[0] * shape[1] * shape[2]
-    if cells.ndim != 2 or cells.shape[0] != ncell:
-        raise ValueError(f"grid.cell_platelets must have shape (nx*ny*nz, capacity), got {cells.shape} for shape {shape}")
     n_pad = _bucket(n_pl + 1, 512)
     table = np.full((_bucket(ncell, 1024), _bucket(cells.shape[1], 4)), n_pad - 1, dtype=np.int32)
     table[:ncell, : cells.shape[1]] = np.where(cells < 0, n_pad - 1, cells)

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from paintjax import PlateletArray, UniformGrid, build_grid, candidate_pairs, generate_platelet_array, periodic_overlap
+from paintjax import PlateletArray, UniformGrid, build_grid, candidate_pairs, check_grid_matches, generate_platelet_array, periodic_overlap
 from paintjax._grid import platelet_boxes
 
 
@@ -116,6 +116,23 @@ def test_overflow_flag_and_capacity(array, grid):
     assert not bool(big.overflow) and big.capacity == grid.capacity + 5
     with pytest.raises(ValueError, match="capacity"):
         build_grid(array, capacity=0)
+
+
+def test_a_grid_only_fits_its_own_array(array, grid):
+    """The tracer checks the grid against the array: another seed, a bigger array or another tile is refused."""
+    check_grid_matches(array, grid)
+    moved = PlateletArray(centers=array.centers.at[:, 0].add(0.5 * array.tile[0]), normals=array.normals, axes_u=array.axes_u,
+                          widths=array.widths, thickness=array.thickness, tile=array.tile, basecoat_thickness=array.basecoat_thickness)
+    with pytest.raises(ValueError, match="built for another array"):  # same tile, count and sizes, other places
+        check_grid_matches(moved, grid)
+    check_grid_matches(moved, build_grid(moved))
+    bigger = generate_platelet_array(3, pvc=0.2, tilt=(2.29, 2.18), tile=200.0)
+    fewer = PlateletArray(centers=array.centers[:10], normals=array.normals[:10], axes_u=array.axes_u[:10], widths=array.widths[:10],
+                          thickness=array.thickness, tile=array.tile, basecoat_thickness=array.basecoat_thickness)
+    with pytest.raises(ValueError, match="but the array has 10 platelets"):
+        check_grid_matches(fewer, grid)
+    with pytest.raises(ValueError, match="tile"):
+        check_grid_matches(array, build_grid(bigger))
 
 
 def test_cell_size_override(array):

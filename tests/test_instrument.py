@@ -49,6 +49,9 @@ def test_custom_geometry_matches_ma98_in_plane_and_flags_out_of_plane():
     np.testing.assert_allclose(np.asarray(c.aspecular_deg)[:2], [15.0, 75.0])
     assert np.isnan(np.asarray(c.aspecular_deg)[2])
     np.testing.assert_allclose(np.asarray(c.detectors_air())[:2], np.asarray(g.detectors_air()), atol=1e-15)
+    # normal illumination: every detector shares a plane with the source, γ = −θ at any azimuth
+    normal = pj.custom_geometry(0.0, [0.0, 20.0, 20.0, 60.0], [0.0, 0.0, 90.0, 37.0])
+    np.testing.assert_allclose(np.asarray(normal.aspecular_deg), [0.0, -20.0, -20.0, -60.0])
 
 
 def test_mirror_tilt_of_specular_is_zero():
@@ -71,6 +74,8 @@ def test_bad_aperture_and_illumination():
         pj.custom_geometry(45.0, [95.0])
     with pytest.raises(ValueError, match="illumination_polar_deg"):  # the side is the azimuth's: γ would be wrong
         pj.custom_geometry(-45.0, [45.0])
+    with pytest.raises(ValueError, match=r"detector_polar_deg must lie in \[0, "):  # likewise for detectors
+        pj.custom_geometry(45.0, [-30.0, 30.0], [0.0, 180.0])
     for bad in (float("nan"), 1e300):
         with pytest.raises(ValueError, match="illumination_azimuth_deg"):
             pj.custom_geometry(45.0, [30.0], illumination_azimuth_deg=bad)

@@ -274,6 +274,8 @@ def test_deterministic_and_validated(empty_scene):
         TracerOptions(reverse_share=-1.0)
     with pytest.raises(ValueError, match="rays"):
         trace(arr, geo, LambertPlateletBRDF(0.5), grid=grid, rays=0)
+    with pytest.raises(ValueError, match=r"grid was built for a \(40.0, 40.0\) µm tile"):  # another array's grid
+        trace(empty_array(tile=(30.0, 30.0), h_b=20.0, thickness=0.2), geo, LambertPlateletBRDF(0.5), grid=grid)
     with pytest.raises(ValueError, match=r"built for a binder of index 1.5, but the coat index n is 1.4"):
         trace(arr, ma98_geometry(45.0, detector_aperture_deg=2.0), MirrorBRDF(n_binder=1.5), grid=grid, n=1.4)
     for bad in (None, "abc", float("nan")):
