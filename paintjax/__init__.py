@@ -59,7 +59,7 @@ from ._overlap import midplane_overlap, obb_overlap, periodic_overlap, tri_tri_i
 from ._samples import Measured, Sample, load_sample, sample_names
 from ._sizes import LogNormalSizes, PolynomialCDFSizes, SizeDistribution, TabulatedCDFSizes, default_sizes
 from ._tilt import GammaTilt
-from ._tracer import LEDGER_KEYS, TraceResult, TracerOptions, lightness_with_se, trace
+from ._tracer import LEDGER_KEYS, MAX_CREATED_ENERGY, EnergyCreationError, TraceResult, TracerOptions, lightness_with_se, trace
 from ._spectral import SPECTRAL_NODES_NM, combine_spectral, lab_from_xyz, spectral_node_weights
 
 from ._hankel import hankel0, hankel01, hankel1

@@ -645,6 +645,10 @@ def wave_lobes(sigma_um, tau_um, *, num_profiles: int = 10, seed: int = 0, lengt
     return solve(profiles, inc, ts, batch_size=1, **kwargs)
 
 
+#: A wave table reflecting more than 1 + this at any incidence is refused (an unconverged solve).
+WAVE_ENERGY_TOLERANCE = 0.01
+
+
 def platelet_table_arrays(
     sigma_um: float,
     tau_um: float,
@@ -675,7 +679,8 @@ def platelet_table_arrays(
     check_positive("sigma_um", sigma_um, 10.0)
     check_positive("tau_um", tau_um, 1e3)
     check_positive("wavelength_um", wavelength_um, 20.0)
-    check_positive("n_medium", n_medium, 5.0)
+    if not (1.0 <= float(n_medium) <= 5.0):
+        raise ValueError(f"n_medium must lie in [1, 5] (a dielectric above the metal), got {n_medium!r}")
     if source not in ("wave", "kirchhoff"):
         raise ValueError(f"source must be 'wave' or 'kirchhoff', got {source!r}")
     if method not in ("abel", "rotate"):
@@ -693,6 +698,12 @@ def platelet_table_arrays(
     }
     if source == "wave":
         wave = importlib.import_module("paintjax._wave") if _wave_available() else None
+        if wave is not None:  # the synthesised profiles need two grid steps per correlation length
+            dx = wave.default_spacing(wavelength_um, n_medium, points_per_wavelength)
+            if tau_um < 2.0 * dx:
+                raise ValueError(f"tau_um must be at least {2.0 * dx:.3g} µm for the wave solver's grid ({dx:.3g} µm at "
+                                 f"wavelength_um={float(wavelength_um):g}; finer with more points_per_wavelength), got {tau_um!r}; "
+                                 "or use source='kirchhoff'")
         inputs |= {
             "length_um": float(length_um), "num_profiles": int(num_profiles), "seed": int(seed), "boundary": boundary,
             "polarization": polarization, "correlation": correlation,
@@ -718,6 +729,15 @@ def platelet_table_arrays(
 
     t0 = time.perf_counter()
     arrays, hit = cached_arrays("brdf_table", inputs, build, folder=cache_dir, use_cache=cache)
+    if source == "wave":  # each profile's solution conserves energy to ~1e-3 when converged
+        R = np.asarray(arrays["reflectance"])
+        if np.any(R > 1.0 + WAVE_ENERGY_TOLERANCE):
+            j = int(np.argmax(R))
+            raise ValueError(
+                f"sigma_um={float(sigma_um):g}, tau_um={float(tau_um):g}: the wave solution reflects {R[j]:.3g} of the incident "
+                f"power at {inc[j]:g}° incidence, more than it receives, so it is not converged (rms slope ≈ "
+                f"{np.degrees(np.arctan(np.sqrt(2.0) * sigma_um / tau_um)):.0f}°, too steep for the solver's sampling); "
+                "use a gentler roughness (smaller sigma_um / tau_um) or source='kirchhoff'")
     return arrays, {"cache_hit": hit, "seconds": time.perf_counter() - t0}
 
 

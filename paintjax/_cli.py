@@ -10,6 +10,7 @@ import argparse
 import importlib
 import os
 import sys
+from pathlib import Path
 
 #: Sub-command modules under paintjax._commands, in the order `--help` lists them.
 COMMANDS = ("demo", "microfacet", "array", "brdf", "lobe", "fit", "design", "simulate", "table1")
@@ -26,6 +27,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _check_output_folder(out) -> None:
+    """Fail at once, before any work, where `--out` could not be created or written (ValueError
+    naming --out); nothing is created here."""
+    if not out:
+        return
+    path = Path(out).absolute()
+    probe = path
+    while not probe.exists():  # the nearest existing folder must let us create the rest
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ValueError(f"--out must be a folder, but {str(probe)!r} is a file, got {out!r}")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ValueError(f"--out must be a folder that can be written, but {str(probe)!r} is not writable, got {out!r}")
+
+
 def main(argv: list[str] | None = None) -> int:
     import jax
 
@@ -33,10 +49,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        _check_output_folder(getattr(args, "out", None))
         result = args.func(args)
     except ValueError as err:
         print(f"paintjax {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:  # e.g. a full disk or an unwritable cache folder ($PAINTJAX_CACHE)
+        print(f"paintjax {args.command}: error: {err}", file=sys.stderr)
+        return 1
     except BrokenPipeError:  # the reader went away (`paintjax … | head`): results on disk are complete
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())

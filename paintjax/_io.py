@@ -6,6 +6,7 @@ import contextlib
 import functools
 import io
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -14,16 +15,20 @@ import numpy as np
 
 
 def to_jsonable(obj):
-    """Convert arrays and numpy scalars (recursively) to plain Python for json.dumps."""
+    """Convert arrays and numpy scalars (recursively) to plain Python for json.dumps; NaN and
+    ±inf (an undefined value, e.g. a flop index without light at 45°) become None, so the output
+    is standard JSON (null)."""
     if isinstance(obj, dict):
         return {str(k): to_jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [to_jsonable(v) for v in obj]
     if hasattr(obj, "__array__"):
         a = np.asarray(obj)
-        return a.tolist() if a.ndim else a.item()
+        return to_jsonable(a.tolist()) if a.ndim else to_jsonable(a.item())
     if isinstance(obj, (np.floating, np.integer, np.bool_)):
-        return obj.item()
+        return to_jsonable(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
     return obj
 
 
@@ -64,7 +69,7 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 
 def atomic_write_json(path: str | os.PathLike, obj) -> Path:
     """JSON-encode `obj` (arrays become lists) and write it atomically."""
-    return atomic_write_bytes(path, (json.dumps(to_jsonable(obj), indent=2) + "\n").encode())
+    return atomic_write_bytes(path, (json.dumps(to_jsonable(obj), indent=2, allow_nan=False) + "\n").encode())
 
 
 def atomic_savez(path: str | os.PathLike, **arrays) -> Path:

@@ -112,6 +112,14 @@ LEDGER_KEYS = ("top_reflection", "exited", "absorbed_platelets", "absorbed_prime
 _BIG = 1e30
 _MAX_GROWTH = 4.0  # adaptive rounds grow the rays at most this factor
 
+#: Largest net energy (fraction of the incident flux) the platelets may create, i.e. negative
+#: platelet absorption in the ledger, before `trace` refuses the result (`EnergyCreationError`).
+MAX_CREATED_ENERGY = 0.01
+
+
+class EnergyCreationError(ValueError):
+    """The platelet BRDF returned more light than it received (its albedo exceeds 1 somewhere)."""
+
 
 class TracerOptions(eqx.Module):
     """Performance and estimator settings of `trace` (all static).
@@ -982,13 +990,17 @@ def _summarise(tally: np.ndarray, m: int, batches: int):
     wgt = np.tile(counts / np.maximum(np.mean(counts, axis=0), 1e-300), 2)
     se = np.sqrt(np.sum((wgt * (per_batch - est)) ** 2, axis=0) / (batches * (batches - 1)))
     ledger = total[2 * m : 2 * m + nl] / N[0]
-    return est, se, per_batch, ledger, total[-m:]
+    # the ledger's batch means (per forward ray; the first column counts every forward ray)
+    ledger_batch = groups[:, 2 * m : 2 * m + nl] / np.maximum(counts[:, :1], 1.0)
+    w0 = counts[:, :1] / max(float(np.mean(counts[:, 0])), 1e-300)
+    ledger_se = np.sqrt(np.sum((w0 * (ledger_batch - ledger)) ** 2, axis=0) / (batches * (batches - 1)))
+    return est, se, per_batch, (ledger, ledger_se), total[-m:]
 
 
 def _combine(parts, m: int):
     """Forward pass + reverse pool (column j = source j = detector j): estimates, SE (independent
     passes add in quadrature), per-batch sums, the forward pass's energy ledger, rays of all passes."""
-    est, se, per_batch, ledger, n = parts[0]
+    est, se, per_batch, ledger, n = parts[0]  # ledger: (values, batch-means SE) of the forward pass
     est, per_batch, var, rays = est.copy(), per_batch.copy(), se**2, int(n[0])
     for e, s, pb, _, n in parts[1:]:
         est[:m] += e[:m]
@@ -1064,11 +1076,13 @@ def trace(
     _check_range("primer_albedo", primer_albedo, 0.0, 1.0)
     _check_range("clearcoat_thickness", clearcoat_thickness, 0.0, 1e4)
     waviness_deg = check_waviness(waviness_deg)
-    if int(rays) < 1:
-        raise ValueError(f"rays must be a positive integer, got {rays!r}")
+    opt = options or TracerOptions()
+    if int(rays) < opt.batches:
+        raise ValueError(f"rays must be at least {opt.batches} (one per batch of the standard error), got {rays!r}")
     if target_se_lstar is not None:
         _check_range("target_se_lstar", target_se_lstar, 0.0, 100.0, lo_open=True)
-    opt = options or TracerOptions()
+        if max_rays is not None and int(max_rays) < int(rays):
+            raise ValueError(f"max_rays must be at least the first round's rays ({int(rays)}), got {max_rays!r}")
     brdf = MirrorBRDF(n_binder=n) if brdf is None else brdf
     if not isinstance(brdf, AbstractPlateletBRDF):
         raise ValueError(f"brdf must be an AbstractPlateletBRDF, got {type(brdf).__name__}")
@@ -1141,7 +1155,20 @@ def trace(
         grow = int(np.ceil(n_local * min(worst**2 * 1.1 - 1.0, _MAX_GROWTH - 1.0)))
         n_local = min(limit_local, n_local + max(grow, opt.lanes))
     seconds = time.perf_counter() - t0
+    ledger, ledger_se = ledger
+    i_pl = LEDGER_KEYS.index("absorbed_platelets")
+    created, created_se = -float(ledger[i_pl]), float(ledger_se[i_pl])
+    # no significance test: creation makes the estimate heavy-tailed (path weights grow per bounce), so
+    # its SE is no guide; a lossy BRDF's net absorption is positive, a lossless one's exactly 0
+    if not np.all(np.isfinite(ledger)) or created > MAX_CREATED_ENERGY:
+        raise EnergyCreationError(
+            f"brdf creates energy: the platelets return {created:.3g} ± {created_se:.2g} of the incident flux more than they "
+            f"receive (allowed: {MAX_CREATED_ENERGY:g}), so its albedo exceeds 1 somewhere (an unconverged wave table, or the "
+            "Kirchhoff approximation at grazing incidence); the result would be unphysical")
     R, Rse = est[:m], se[:m]  # L, Lse: the last round's
+    if target_se_lstar is not None and not (np.all(Lse <= target_se_lstar) and np.all(resolved_detectors(per_batch[:, :m]))):
+        warnings.warn(f"the L* standard error target {target_se_lstar:g} was not reached within max_rays ({int(N)} rays traced): "
+                      f"worst SE {float(np.max(Lse)):.3g}", RuntimeWarning, stacklevel=2)
     ok = resolved_detectors(per_batch[:, :m])
     if not np.all(ok):
         hits = np.count_nonzero(per_batch[:, :m], axis=0)

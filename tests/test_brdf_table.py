@@ -2,6 +2,7 @@
 
 import functools
 import importlib.util
+import warnings
 
 import equinox as eqx
 import jax
@@ -165,6 +166,20 @@ def test_small_wave_table_keeps_wave_reflectance(tmp_path):
     np.testing.assert_allclose(arrays["reflectance"] + arrays["absorbed"], 1.0, atol=5e-3)
     assert np.all(arrays["wave_solved"]) and not info["cache_hit"]
     assert float(arrays["normalisation_error"]) < 1e-9
+
+
+@pytest.mark.skipif(importlib.util.find_spec("paintjax._wave") is None, reason="wave solver not present")
+def test_unconverged_wave_table_is_refused(tmp_path):
+    """Profiles far too steep for the solver's sampling (rms slope 77°) reflect several times the
+    incident power: refused with the roughness named, built or loaded from the cache."""
+    kw = dict(source="wave", num_profiles=2, length_um=8.0, incidence_deg=[0.0, 20.0, 40.0], theta_s_deg=np.linspace(-89.5, 89.5, 179),
+              cache_dir=tmp_path)
+    for _ in range(2):  # the second call reads the cache
+        with pytest.raises(ValueError, match=r"sigma_um=0.3, tau_um=0.1: the wave solution reflects [0-9.]+ of the incident power"):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # the builder's own warning, on the first call only
+                platelet_table_arrays(0.3, 0.1, **kw)
+    assert np.max(platelet_table_arrays(SIGMA, TAU, **kw)[0]["reflectance"]) < 1.0  # the measured roughness is fine
 
 
 def test_speckled_lobes_need_no_renormalisation():

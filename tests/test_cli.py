@@ -69,6 +69,14 @@ def test_readable_table(capsys):
         (["simulate", "--brdf", "mirror", "--brdf-method", "rotate"], "brdf_method"),
         (["simulate", "--brdf", "kirchhoff", "--correlation", "exponential"], "correlation"),
         (["simulate", "--rays", "0"], "rays"),
+        (["simulate", "--rays", "16"], "rays must be at least 32"),
+        (["simulate", "--brdf", "mirror", "--sigma", "0.05"], "sigma and tau apply to --brdf wave or kirchhoff only"),
+        (["simulate", "--primer-albedo", "2"], "primer_albedo"),
+        (["simulate", "--waviness", "30"], "waviness"),
+        (["simulate", "--seed", "-1"], "seed"),
+        (["simulate", "--shape", "0"], "shape"),
+        (["simulate", "--out", "/proc/version/sub"], "--out must be a folder"),
+        (["brdf", "--n", "0.5"], "n_medium"),
         (["simulate", "--d50", "0"], "d50"),
         (["simulate", "--platelet-thickness", "25"], "platelet_thickness"),
         (["simulate", "--pvc", "0.45"], "pvc"),
@@ -88,6 +96,17 @@ def test_bad_input_is_a_one_line_error(argv, needle, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert needle in err and "Traceback" not in err
+
+
+def test_undefined_values_are_null_in_json(tmp_path):
+    """JSON output is standard JSON: a flop index without light at 45° is None (null), never NaN."""
+    from paintjax._commands._common import flop_index_or_none
+    from paintjax._io import atomic_write_json, to_jsonable
+
+    assert flop_index_or_none(140.0, 0.0, 30.0) is None and flop_index_or_none(140.0, 60.0, 30.0) > 0
+    assert to_jsonable({"a": np.array([1.0, np.nan, np.inf]), "b": np.float64("nan")}) == {"a": [1.0, None, None], "b": None}
+    path = atomic_write_json(tmp_path / "x.json", {"flop": float("nan")})
+    assert json.loads(path.read_text()) == {"flop": None}
 
 
 def test_console_script_runs_as_a_user_would():

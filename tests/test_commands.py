@@ -34,7 +34,7 @@ def table1_run(tmp_path_factory):
 def test_table1_json_contract_and_consistency(table1_run):
     rc, data, out = table1_run
     assert rc == 0
-    assert set(data) == {"samples"} and set(data["samples"]) == {"silver1", "silver2"}
+    assert set(data) == {"samples", "notes"} and set(data["samples"]) == {"silver1", "silver2"}
     for name, row in data["samples"].items():
         assert set(row) == {"measured", "hybrid", "hybrid_se", "mirror", "analytic", "rms_hybrid"}
         s = load_sample(name)
@@ -67,7 +67,7 @@ def test_simulate_json_contract_and_result_files(capsys, tmp_path):
     saved = json.loads((tmp_path / "simulate.json").read_text())
     assert saved["L_star"] == r["L_star"] and saved["inputs"]["brdf"] == "kirchhoff" and saved["sample"] == "silver2"
     assert (tmp_path / "simulate.png").stat().st_size > 10_000
-    assert set(r) == {"aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds"}
+    assert set(r) == {"aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds"} | {"resolved", "flop_index"}
     assert r["aspecular_deg"] == [15.0, 25.0, 45.0, 75.0, 110.0]
     assert 16384 <= r["rays"] <= 16384 + 8 * jax.local_device_count()  # each pass rounds up
     assert np.all(np.diff(r["L_star"])[:3] < 0)  # lightness falls away from the specular direction (15° … 75°)

@@ -97,6 +97,23 @@ def test_energy_lossless(lambert_scene, waviness):
     assert abs(hemisphere - entered) < K * se
 
 
+def test_energy_creating_platelets_are_refused(lambert_scene):
+    """A platelet BRDF whose albedo exceeds 1 (e.g. an unconverged wave table) would give an
+    unphysical paint; the ledger shows it as negative platelet absorption and trace refuses it."""
+    import equinox as eqx
+    import jax.numpy as jnp
+
+    from paintjax import EnergyCreationError
+
+    arr, grid = lambert_scene
+    for albedo in (1.05, 3.0):  # a few per cent per bounce; and weights that grow without bound (inf in the ledger)
+        bright = eqx.tree_at(lambda b: b.albedo_value, LambertPlateletBRDF(1.0), jnp.asarray(albedo))  # past the constructor's check
+        with pytest.raises(EnergyCreationError, match="brdf creates energy"):
+            trace(arr, ma98_geometry(45.0), bright, grid=grid, rays=4096, seed=2, options=OPT_FWD)
+    ok = trace(arr, ma98_geometry(45.0), LambertPlateletBRDF(1.0), grid=grid, rays=4096, seed=2, options=OPT_FWD)
+    assert ok.energy["absorbed_platelets"] == 0.0  # lossless, and not refused
+
+
 def test_energy_lossless_mirror_platelets():
     """Lossless delta platelets (reflectance 1) and a ρ = 1 primer: the delta paths (no NEE, scored on
     exit into the apertures) keep every bit of weight too, and the reported estimate (primer NEE by

@@ -10,8 +10,21 @@ from .._io import to_jsonable
 
 
 def print_json(obj) -> None:
-    json.dump(to_jsonable(obj), sys.stdout, indent=None)
+    json.dump(to_jsonable(obj), sys.stdout, indent=None, allow_nan=False)
     sys.stdout.write("\n")
+
+
+def flop_index_or_none(L15, L45, L110) -> float | None:
+    """The flop index, or None where the formula is undefined (no light at 45°, L*15 < L*110)."""
+    from .._lightness import flop_index
+
+    v = float(flop_index(L15, L45, L110))
+    return v if math.isfinite(v) else None
+
+
+def format_optional(value, spec: str = ".2f") -> str:
+    """`value` formatted, or an em dash for None."""
+    return "—" if value is None else format(value, spec)
 
 
 def parse_floats(text: str, name: str, count: int | None = None) -> list[float]:

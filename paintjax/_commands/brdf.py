@@ -95,15 +95,16 @@ def plot(result: dict, path: Path, title: str) -> Path:
 
 
 def run(args) -> int:
-    r = compute(args.sigma, args.tau, args.wavelength, args.n, args.profiles, args.length, args.seed, args.source, args.method, args.cache_dir, not args.no_cache)
-    if args.json:
-        print_json({k: r[k] for k in ("incidence_deg", "theta_o_deg", "brdf", "reflectance")})
-        return 0
-    out = Path(args.out)
-    png = plot(r, out / "brdf.png", f"platelet BRDF σ = {args.sigma:g} µm, τ = {args.tau:g} µm ({args.source}, {args.method})")
     from .._io import atomic_write_json
 
-    atomic_write_json(out / "brdf.json", {k: r[k] for k in ("incidence_deg", "theta_o_deg", "brdf", "reflectance")})
+    r = compute(args.sigma, args.tau, args.wavelength, args.n, args.profiles, args.length, args.seed, args.source, args.method, args.cache_dir, not args.no_cache)
+    out = Path(args.out)  # the files are written with --json too, as by simulate and table1
+    png = plot(r, out / "brdf.png", f"platelet BRDF σ = {args.sigma:g} µm, τ = {args.tau:g} µm ({args.source}, {args.method})")
+    data = {k: r[k] for k in ("incidence_deg", "theta_o_deg", "brdf", "reflectance")}
+    atomic_write_json(out / "brdf.json", data)
+    if args.json:
+        print_json(data)
+        return 0
     print(f"platelet BRDF table σ = {args.sigma:g} µm, τ = {args.tau:g} µm, λ0 = {args.wavelength:g} µm, n = {args.n:g} "
           f"({args.source}, {args.method}; {'loaded from cache' if r['cache_hit'] else 'built'} in {r['seconds']:.1f} s)")
     a = r["arrays"]

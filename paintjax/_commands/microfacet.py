@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._common import add_json_argument, print_json
+from ._common import add_json_argument, flop_index_or_none, format_optional, print_json
 
 
 def register(sub) -> None:
@@ -28,7 +28,7 @@ def register(sub) -> None:
 
 def compute(sample: str = "silver1", shape=None, scale=None, reflectance=None, n=None, exit_occlusion=True, hot_spot=True) -> dict:
     """Five-angle analytic single-scatter prediction as a plain dict (the CLI's JSON)."""
-    from .. import GammaTilt, MirrorBRDF, flop_index, load_sample, ma98_geometry
+    from .. import GammaTilt, MirrorBRDF, load_sample, ma98_geometry
     from .._hot_spot import HotSpot
     from .._microfacet import microfacet_reflectance_factor
     from .._lightness import reflectance_factor_to_lightness
@@ -47,7 +47,7 @@ def compute(sample: str = "silver1", shape=None, scale=None, reflectance=None, n
         "tilt_probed_deg": np.asarray(geometry.probed_tilt_deg(n)),
         "reflectance_factor": np.asarray(R),
         "L_star": np.asarray(L),
-        "flop_index": float(flop_index(L[0], L[2], L[4])),
+        "flop_index": flop_index_or_none(L[0], L[2], L[4]),
         "measured_L_star": np.asarray(s.L_star),
         "hot_spot": bool(hot_spot and exit_occlusion),
     }
@@ -63,5 +63,5 @@ def run(args) -> int:
     print(f"{'aspecular':>10} {'tilt probed':>12} {'R factor':>10} {'L*':>8} {'measured':>9}")
     for row in zip(r["aspecular_deg"], r["tilt_probed_deg"], r["reflectance_factor"], r["L_star"], r["measured_L_star"]):
         print(f"{row[0]:>9.0f}° {row[1]:>11.2f}° {row[2]:>10.4f} {row[3]:>8.1f} {row[4]:>9.1f}")
-    print(f"flop index: {r['flop_index']:.2f}")
+    print(f"flop index: {format_optional(r['flop_index'])}")
     return 0

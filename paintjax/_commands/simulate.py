@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import hashlib
 import sys
+import warnings
 import time
 from importlib import resources
 
 import numpy as np
 
-from ._common import add_array_arguments, add_json_argument, add_output_argument, array_overrides, parse_floats, print_json
+from ._common import (add_array_arguments, add_json_argument, add_output_argument, array_overrides, flop_index_or_none, parse_floats,
+                      print_json)
 from .._cache import enable_compilation_cache
 from .._profiles import CORRELATIONS
 
@@ -28,11 +30,19 @@ FIRST_ROUND_RAYS, MIN_FIRST_ROUND_RAYS = 131072, 16384
 
 
 def check_adaptive(target_se: float, max_rays: int) -> None:
-    """Validate the adaptive rule's L* SE target (0, 10] and its ray ceiling (≥ 1)."""
+    """Validate the adaptive rule's L* SE target (0, 10] and its ray ceiling (≥ one ray per batch)."""
     if not (0.0 < float(target_se) <= 10.0):
         raise ValueError(f"target_se must lie in (0, 10] L* units, got {target_se!r}")
-    if int(max_rays) < 1:
-        raise ValueError(f"max_rays must be a positive integer, got {max_rays!r}")
+    check_rays(max_rays, "max_rays")
+
+
+def check_rays(rays, name: str = "rays", options=None) -> None:
+    """At least one ray per batch of the batch-means standard error (`TracerOptions.batches`)."""
+    from .._tracer import TracerOptions
+
+    batches = (options or TracerOptions()).batches
+    if int(rays) < batches:
+        raise ValueError(f"{name} must be at least {batches} (one per batch of the standard error), got {rays!r}")
 
 
 def first_round_rays(target_se: float) -> int:
@@ -66,13 +76,12 @@ def measured_lightness(sample, geometry, measured=None):
 
 
 def geometry_flop_index(geometry, L):
-    """Flop index from L* at 15°, 45° and 110° aspecular under 45° illumination; None if the geometry lacks one."""
-    from .._lightness import flop_index
-
+    """Flop index from L* at 15°, 45° and 110° aspecular under 45° illumination; None if the geometry
+    lacks one or the formula is undefined (no light at 45°)."""
     gamma = np.asarray(geometry.aspecular_deg, dtype=float).tolist()
     if float(geometry.illumination_polar_deg) != 45.0 or not all(a in gamma for a in (15.0, 45.0, 110.0)):
         return None
-    return float(flop_index(*(L[gamma.index(a)] for a in (15.0, 45.0, 110.0))))
+    return flop_index_or_none(*(L[gamma.index(a)] for a in (15.0, 45.0, 110.0)))
 
 
 def register(sub) -> None:
@@ -251,13 +260,25 @@ def simulate(
     from .._spectral import SPECTRAL_NODES_NM, combine_spectral
     from .._tracer import trace
 
+    from .._interface import check_waviness
+    from .._microstructure import tilt_ks
+    from .._tilt import GammaTilt
+    from .._tracer import _check_range, _seed_state
+
     t0 = time.perf_counter()
     s = load_sample(sample)
-    if rays is not None and int(rays) < 1:
-        raise ValueError(f"rays must be a positive integer, got {rays!r}")
-    if rays is None:
+    # every cheap check before any table or array is built
+    if rays is not None:
+        check_rays(rays, options=options)
+    else:
         check_adaptive(target_se, max_rays)
-    array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)  # fail before any table is built
+    array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)
+    tilt = GammaTilt(s.tilt_shape.value if shape is None else shape, s.tilt_scale.value if scale is None else scale)
+    _check_range("primer_albedo", primer_albedo, 0.0, 1.0)
+    check_waviness(waviness)
+    _seed_state(seed)
+    if brdf == "mirror" and (sigma is not None or tau is not None):
+        raise ValueError("sigma and tau apply to --brdf wave or kirchhoff only (mirror platelets are smooth)")
     geometry = instrument_geometry(illumination_deg, aspecular_deg)
     measured_L = measured_lightness(s, geometry, measured)
     n = s.binder_index
@@ -269,6 +290,11 @@ def simulate(
                  for w in wavelengths_um]
     array = sample_array(s.name, seed=seed, shape=shape, scale=scale, pvc=pvc, thickness=thickness, d50=d50,
                          platelet_thickness=platelet_thickness)
+    ks = tilt_ks(array, tilt)
+    if ks[1] < 1e-3:  # the generator redraws orientations that do not fit the film
+        warnings.warn(f"the array's tilts do not follow the gamma law asked for (KS D = {ks[0]:.3f}, p = {ks[1]:.1e}): the basecoat "
+                      f"({float(array.basecoat_thickness):g} µm, --thickness) is too thin for these platelets' widths and tilts, so "
+                      "steep orientations were redrawn", RuntimeWarning, stacklevel=2)
     grid = build_grid(array)
     aperture = MIRROR_APERTURE_DEG if platelets[0].is_delta else 0.0
     if aperture:
@@ -276,7 +302,7 @@ def simulate(
     kwargs = dict(grid=grid, n=n, clearcoat_thickness=s.clearcoat_thickness, primer_albedo=primer_albedo, waviness_deg=waviness, seed=seed,
                   single_scatter=single_scatter, options=options)
     if rays is None:  # the adaptive rule per wavelength: each run's SE ≤ target bounds the combination's
-        kwargs.update(rays=first_round_rays(target_se), target_se_lstar=target_se, max_rays=max_rays)
+        kwargs.update(rays=min(first_round_rays(target_se), int(max_rays)), target_se_lstar=target_se, max_rays=max_rays)
     else:
         kwargs.update(rays=int(rays))
     results = []
@@ -310,10 +336,11 @@ def simulate(
     out["platelet_median_width_um"] = float(np.median(np.asarray(array.widths)))
     out["platelet_thickness_um"] = float(array.thickness)
     out["tile_um"] = list(array.tile)
+    out["tilt_ks"] = {"D": ks[0], "p": ks[1]}
     return out
 
 
-_JSON_KEYS = ("aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds")
+_JSON_KEYS = ("aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds", "resolved", "flop_index")
 _SPECTRAL_KEYS = ("wavelengths_nm", "spectral_reflectance_factor", "Lab", "Lab_se")
 
 

@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from ._common import add_json_argument, add_output_argument, print_json
+from ._common import add_json_argument, add_output_argument, flop_index_or_none, format_optional, print_json
 from .._cache import enable_compilation_cache
 from .simulate import DEFAULT_TARGET_SE, MIRROR_APERTURE_DEG
 
@@ -75,7 +75,7 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
     from .._brdf import MirrorBRDF
     from .._hot_spot import HotSpot
     from .._instrument import ma98_geometry
-    from .._lightness import flop_index, reflectance_factor_to_lightness
+    from .._lightness import reflectance_factor_to_lightness
     from .._microfacet import microfacet_reflectance_factor
     from .._samples import load_sample
     from .._tilt import GammaTilt
@@ -107,6 +107,9 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
                                   progress=progress)
             except (ValueError, ImportError, OSError) as err:
                 out["notes"].append(f"hybrid column unavailable for {name}: {err}")
+        if hybrid is not None and float(np.max(hybrid["L_star_se"])) > target_se:
+            out["notes"].append(f"{name}: the hybrid column stopped at the ray ceiling ({hybrid['rays']} rays, max_rays {max_rays}) with "
+                                f"an L* standard error of {float(np.max(hybrid['L_star_se'])):.2f}, above the target {target_se:g}")
         if hybrid is not None:
             report(f"{name}: hybrid done, {hybrid['rays']} rays, largest SE {float(np.max(hybrid['L_star_se'])):.2f} L*, "
                    f"{time.perf_counter() - t0:.0f} s; mirror column ({mirror_rays} rays) …")
@@ -122,7 +125,7 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
         row["mirror"] = np.asarray(mirror["L_star"])
         row["mirror_se"] = np.asarray(mirror["L_star_se"])
         row["analytic"] = analytic
-        fi = lambda L: None if L is None else float(flop_index(L[0], L[2], L[4]))  # noqa: E731
+        fi = lambda L: None if L is None else flop_index_or_none(L[0], L[2], L[4])  # noqa: E731
         row["rms_hybrid"] = None if hybrid is None else _rms(row["hybrid"], row["measured"])
         row["rms_mirror"] = _rms(row["mirror"], row["measured"])
         row["rms_analytic"] = _rms(row["analytic"], row["measured"])
@@ -179,10 +182,14 @@ def run(args) -> int:
     r["seconds"] = time.perf_counter() - t0
     atomic_write_json(f"{args.out}/table1.json", r)
     png = _plot(r, args.out)
+    # the hybrid column is the main job: without it the run has failed, whatever else it shows
+    status = 1 if any(row["hybrid"] is None for row in r["samples"].values()) else 0
     if args.json:
+        for note in r["notes"]:
+            print(f"NOTE: {note}", file=sys.stderr)
         keys = _JSON_KEYS + (("hybrid_Lab", "hybrid_Lab_se") if args.spectral else ())
-        print_json({"samples": {k: {key: v[key] for key in keys if key in v} for k, v in r["samples"].items()}})
-        return 0
+        print_json({"samples": {k: {key: v[key] for key in keys if key in v} for k, v in r["samples"].items()}, "notes": r["notes"]})
+        return status
     gamma = r["aspecular_deg"]
     for note in r["notes"]:
         print(f"NOTE: {note}")
@@ -198,8 +205,8 @@ def run(args) -> int:
         rh = "—" if row["rms_hybrid"] is None else f"{row['rms_hybrid']:.1f}"
         print(f"{'RMS ΔL*':>10} {'':>9} {rh:>15} {'':>6} {row['rms_mirror']:>15.1f} {'':>6} {row['rms_analytic']:>9.1f}")
         f = row["flop"]
-        fh = "—" if f["hybrid"] is None else f"{f['hybrid']:.2f}"
-        print(f"flop index: measured {f['measured']:.2f}, hybrid {fh}, mirror {f['mirror']:.2f}, analytic {f['analytic']:.2f}"
+        fm, fh, fr, fa = (format_optional(f[k]) for k in ("measured", "hybrid", "mirror", "analytic"))
+        print(f"flop index: measured {fm}, hybrid {fh}, mirror {fr}, analytic {fa}"
               f"   ({row['seconds']:.0f} s)")
         if "hybrid_Lab" in row:
             print("hybrid a*, b* (D65, 10°): " + ", ".join(f"{g:.0f}° {lab[1]:+.2f}/{lab[2]:+.2f} (± {se[1]:.2f}/{se[2]:.2f})"
@@ -207,4 +214,4 @@ def run(args) -> int:
     print(f"\nhybrid column: {'spectral, 400-700 nm under D65 and the CIE 1964 10° observer' if r['spectral'] else 'one wavelength, 0.5 µm'}; "
           f"mirror column: delta platelets scored into a {MIRROR_APERTURE_DEG:g}° detector aperture; "
           f"analytic: mirror platelets, exit occlusion correlated over the platelet widths (hot spot), zero aperture. Plot: {png}; data: {args.out}/table1.json; {r['seconds']:.0f} s in all")
-    return 0
+    return status
