@@ -48,7 +48,9 @@ specular (2kσ ≈ 0.75 at σ = 20 nm, over half the light coherent) to strongly
 (σ = 90 nm, coherent share < 10⁻³ at normal incidence), slopes 2σ/τ from 0.02 to 0.4. Rougher
 platelets are left out because the platelet tables of this `_brdf_table` version are not energy
 conserving there (table version 7: L* > 300 at σ = 0.14, τ = 0.39 µm, and 3× the incident flux
-created at σ = 0.113, τ = 0.70 µm; `trace` refuses such evaluations, `_tracer.MAX_CREATED_ENERGY`). Its
+created at σ = 0.113, τ = 0.70 µm, seen through this module's grid; a table built directly at that
+point conserves energy in `simulate`, its platelets absorbing 0.39 of the flux, 2026-12-02; `trace`
+refuses evaluations that create energy, `_tracer.MAX_CREATED_ENERGY`). Its
 log-centres (3.1, 1.67°, 0.042 µm, 0.90 µm) are not the measured values (2.29–2.98, 2.1–2.18°,
 0.051 µm, 0.64 µm), which sit at 25–62 % of each log-range. The box is narrower than the
 registered parameter bounds so that a design of 120 tracer runs can cover it.
