@@ -67,7 +67,10 @@ def metal_index_or_aluminium(metal_index, wavelength_um: float) -> complex:
     """The given complex metal index, or aluminium (Rakić Lorentz–Drude) at the vacuum wavelength."""
     if metal_index is None:
         return complex(np.asarray(aluminium_index(wavelength_um)))
-    return complex(metal_index)
+    m = complex(metal_index)
+    if not (np.isfinite(m.real) and np.isfinite(m.imag) and m.real >= 0 and m.imag >= 0):
+        raise ValueError(f"metal_index must be a finite complex index n + ik with n, k ≥ 0, got {metal_index!r}")
+    return m
 
 
 def coherent_lobe_width(wavelength_um: float, n_medium: float, platelet_width_um: float) -> float:

@@ -111,7 +111,7 @@ DEFAULT_INCIDENCE_DEG = np.concatenate([np.arange(0.0, 88.0, 3.0), [89.0]])
 DEFAULT_NUM_WIDTHS = 36
 _MIN_WIDTH, _MAX_WIDTH = 0.012, 2.5
 #: Bumped when the table construction changes (part of the cache key).
-TABLE_VERSION = 7
+TABLE_VERSION = 8
 #: In-plane points closer to grazing than this cosine are not used by the lobe fit.
 COS_MIN = 0.1
 #: Relative-error fits: passes with weights from the fitted model after the first (data-weighted) one.
@@ -131,6 +131,16 @@ class InPlaneLobes(eqx.Module):
     sigma_coherent: np.ndarray
     reflected: np.ndarray
     absorbed: np.ndarray
+
+
+def check_medium_index(n_medium) -> None:
+    """The dielectric above the metal: a real index in [1, 5]."""
+    try:
+        v = float(n_medium)
+    except (TypeError, ValueError):
+        raise ValueError(f"n_medium must be a number in [1, 5], got {n_medium!r}") from None
+    if not (1.0 <= v <= 5.0):
+        raise ValueError(f"n_medium must lie in [1, 5] (a dielectric above the metal), got {n_medium!r}")
 
 
 def _fresnel_np(cos_i, n1, n2):
@@ -171,6 +181,7 @@ def kirchhoff_lobes(
     """
     check_positive("sigma_um", sigma_um, 10.0)
     check_positive("tau_um", tau_um, 1e3)
+    check_medium_index(n_medium)
     if theta_s_deg is None:
         theta_s_deg = np.linspace(-89.75, 89.75, 719)
     metal = metal_index_or_aluminium(metal_index, wavelength_um)
@@ -521,7 +532,7 @@ class TabulatedBRDF(AbstractLobeBRDF):
         check_coherent(coherent)
         check_positive("coherent_width", coherent_width, 1.0)
         if n_medium is not None:
-            check_positive("n_medium", n_medium, 5.0)
+            check_medium_index(n_medium)
         self.n_medium = None if n_medium is None else float(n_medium)
         self.incidence_deg, self.widths, self.coef, self.scale = incidence_deg, widths, coef, scale
         self.proposal_coef = proposal_coef
@@ -679,8 +690,7 @@ def platelet_table_arrays(
     check_positive("sigma_um", sigma_um, 10.0)
     check_positive("tau_um", tau_um, 1e3)
     check_positive("wavelength_um", wavelength_um, 20.0)
-    if not (1.0 <= float(n_medium) <= 5.0):
-        raise ValueError(f"n_medium must lie in [1, 5] (a dielectric above the metal), got {n_medium!r}")
+    check_medium_index(n_medium)
     if source not in ("wave", "kirchhoff"):
         raise ValueError(f"source must be 'wave' or 'kirchhoff', got {source!r}")
     if method not in ("abel", "rotate"):
@@ -744,12 +754,13 @@ def platelet_table_arrays(
 def _wave_with_grazing_extension(sigma_um, tau_um, inc, ts, *, length_um, num_profiles, wavelength_um, n_medium, metal_index, **kw):
     """Wave lobes up to the solver's largest incidence; beyond it, rescaled 1-D Kirchhoff lobes.
 
-    The Thorsos beam limits the incidence (`paintjax._wave.max_incidence_deg`, ≈79° for 20 µm
+    The Thorsos beam limits the incidence (`paintjax._wave.max_incidence_deg`, ≈74° for 20 µm
     profiles in the binder). Tabulated incidences above the limit take the *shape* and the coherent
     share of the 1-D Kirchhoff lobes of the same (σ, τ), and a total reflectance that follows the
-    flat-metal Fresnel reflectance from the last solved incidence: R(θ) = R_wave(θ_last) R_F(θ) /
-    R_F(θ_last) (→ 1 at grazing, never the unphysical growth of the Kirchhoff integral). Which
-    incidences were solved is stored as `wave_solved`.
+    flat surface's Fresnel reflectance from the last solved incidence: R(θ) = R_wave(θ_last) R_F(θ) /
+    R_F(θ_last) (→ 1 at grazing, never the unphysical growth of the Kirchhoff integral; R_F ≡ 1 for
+    the perfect conductors, boundary "pec", "dirichlet", "neumann"). Which incidences were solved is
+    stored as `wave_solved`.
 
     Returns:
         (InPlaneLobes, solved incidences).
@@ -766,7 +777,9 @@ def _wave_with_grazing_extension(sigma_um, tau_um, inc, ts, *, length_um, num_pr
     lobes = debias_coherent(lobes, num_profiles)
     if inc_k.size:
         kl = kirchhoff_lobes(sigma_um, tau_um, incidence_deg=inc_k, theta_s_deg=ts, wavelength_um=wavelength_um, n_medium=n_medium, metal_index=metal_index)
-        fres = _fresnel_np(np.cos(np.deg2rad(np.concatenate([inc_w[-1:], inc_k]))), n_medium, metal_index)
+        cos_ext = np.cos(np.deg2rad(np.concatenate([inc_w[-1:], inc_k])))
+        perfect = kw.get("boundary", "impedance") != "impedance"  # a perfect conductor reflects everything
+        fres = np.ones_like(cos_ext) if perfect else _fresnel_np(cos_ext, n_medium, metal_index)
         target = lobes.reflected[-1] * fres[1:] / fres[0]
         r = (target / kl.reflected)[:, None]
         ext = InPlaneLobes(inc_k, ts, r * kl.sigma, r * kl.sigma_coherent, target, 1.0 - target)

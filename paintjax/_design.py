@@ -109,8 +109,8 @@ def design_to_target(
     """
     m = len(forward.aspecular_deg)
     y = check_measured(target, m, name="target")
-    if not (float(tolerance) > 0):
-        raise ValueError(f"tolerance must be > 0 L*, got {tolerance!r}")
+    if not (0 < float(tolerance) < float("inf")):
+        raise ValueError(f"tolerance must be a finite number > 0 [L*], got {tolerance!r}")
     if free is not None and "discrepancy" in free:
         raise ValueError("free must not include discrepancy (a statistical, not a design, parameter)")
     fr = fit_least_squares(forward, y, free=free, fixed=fixed, bounds=bounds, instrument_sd=float(tolerance), weights=weights,

@@ -9,9 +9,13 @@ are recorded and skipped, and the lowest χ² among converged starts wins.
 
 Covariance: J = ∂r/∂x at the optimum in *physical* units (chain rule through the bijection),
 C = s² (JᵀJ)⁺ with s² = max(1, χ²/(n − p)) when n > p and s² = 1 otherwise (the Birge-ratio
-inflation: if the residuals exceed the stated noise, the noise is scaled up, never down). A
-`discrepancy` parameter is not fitted by least squares (it is a variance): when freed it is
-estimated afterwards as δ̂² = max(0, Σ(L*_model − L*_meas)²/max(n − p, 1) − σ_instr²).
+inflation: if the residuals exceed the stated noise, the noise is scaled up, never down).
+Parameters the data do not identify (fewer weighted angles than free parameters, or a flat
+direction: the numerical null space of the column-normalised J) get infinite variance and a
+RuntimeWarning, not the pseudo-inverse's zero. A `discrepancy` parameter is not fitted by least
+squares (it is a variance): when freed it is estimated afterwards over the weighted angles as
+δ̂² = max(0, Σ(L*_model − L*_meas)²/max(n − p, 1) − σ_instr² − mean e²), e the forward model's own
+error (an emulator's `error_sd`; 0 for the analytic model), as the posterior's likelihood adds them.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from __future__ import annotations
 import dataclasses
 import threading
 import time
+import warnings
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -41,7 +46,8 @@ class FitResult:
     Attributes:
         names: free parameter names.
         values, stderr: best-fit values and standard errors per name (physical units).
-        covariance: (p, p) covariance in physical units (scaling in the module docstring).
+        covariance: covariance of the forward-model parameters (not `discrepancy`) in physical units, in the
+            order of `names` without it (scaling in the module docstring; inf where not identified).
         L_star_fit, L_star_measured: model and measured L* per angle.
         residuals: L_star_fit − L_star_measured (L* units).
         standardized_residuals: the least-squares residual vector at the optimum.
@@ -148,7 +154,23 @@ def _problem(forward: ForwardModel, free, fixed, bounds):
             q = forward.spec.parameters[forward.spec.index(p.name)]
             if p.lower < q.lower - 1e-12 or p.upper > q.upper + 1e-12:
                 raise ValueError(f"bounds of {p.name} [{p.lower:g}, {p.upper:g}] exceed the emulator's training box [{q.lower:g}, {q.upper:g}]")
+        for name, v in restricted.fixed.items():  # the emulator would clip them into its box without a word
+            if name in forward.spec.names:
+                q = forward.spec.parameters[forward.spec.index(name)]
+                if not (q.lower - 1e-12 <= v <= q.upper + 1e-12):
+                    raise ValueError(f"fixed value of {name} must lie in the emulator's training box [{q.lower:g}, {q.upper:g}], got {v!r}")
     return spec, sub, restricted
+
+
+def _unidentified(Jx: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
+    """Parameters with a component in the numerical null space of the (column-normalised) Jacobian."""
+    col = np.linalg.norm(Jx, axis=0)
+    if not np.all(np.isfinite(Jx)):
+        return np.ones(Jx.shape[1], bool)
+    Jn = Jx / np.where(col > 0, col, 1.0)
+    _, sv, vt = np.linalg.svd(Jn, full_matrices=True)
+    rank = int(np.sum(sv > rtol * max(float(sv.max(initial=0.0)), 1e-300)))
+    return (np.linalg.norm(vt[rank:], axis=0) > 1e-6) | (col == 0)
 
 
 def fit_least_squares(
@@ -192,8 +214,8 @@ def fit_least_squares(
     t0 = time.perf_counter()
     m = len(forward.aspecular_deg)
     y = check_measured(measured, m)
-    if not (float(instrument_sd) > 0):
-        raise ValueError(f"instrument_sd must be > 0, got {instrument_sd!r}")
+    if not (0 < float(instrument_sd) < float("inf")):
+        raise ValueError(f"instrument_sd must be a finite number > 0 [L*], got {instrument_sd!r}")
     if int(n_starts) < 1:
         raise ValueError(f"n_starts must be >= 1, got {n_starts!r}")
     w = np.ones(m) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
@@ -205,8 +227,6 @@ def fit_least_squares(
     args = (jnp.asarray(y), jnp.asarray(w), jnp.asarray(s))
 
     from scipy.stats import qmc
-
-    import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # Sobol balance needs powers of 2; we only need spread
@@ -262,6 +282,13 @@ def fit_least_squares(
     chi2 = float(chi2_all[best])
     scale2 = max(1.0, chi2 / dof) if dof > 0 else 1.0
     cov = scale2 * np.linalg.pinv(Jx.T @ Jx)
+    unidentified = _unidentified(Jx)
+    if unidentified.any():  # directions the data do not constrain: infinite variance, not pinv's zero
+        cov[unidentified, :] = np.inf
+        cov[:, unidentified] = np.inf
+        warnings.warn(f"the data do not identify {', '.join(n for n, u in zip(sub.names, unidentified) if u)} "
+                      f"({n_eff} weighted angles for {len(sub)} free parameters, or a flat direction): their standard "
+                      "errors are infinite; fix some parameters or add angles", RuntimeWarning, stacklevel=2)
     L_fit = fwd(u_best[None])[0]
     res = L_fit - y
     values = sub.as_dict(x_best)
@@ -269,7 +296,9 @@ def fit_least_squares(
     at_bound = [n for n, flag in zip(sub.names, edge[best]) if flag]
     disc = None
     if "discrepancy" in spec.names:
-        disc = float(np.sqrt(max(0.0, np.sum((w * res) ** 2) / max(dof, 1) - float(instrument_sd) ** 2)))
+        used = w > 0  # unweighted residuals: δ is a variance in L*², whatever the weights
+        e2 = np.broadcast_to(np.asarray(forward.error_sd, dtype=float) ** 2, res.shape)
+        disc = float(np.sqrt(max(0.0, np.sum(res[used] ** 2) / max(dof, 1) - float(instrument_sd) ** 2 - float(np.mean(e2[used])))))
         values["discrepancy"] = disc
         stderr["discrepancy"] = float("nan")
     return FitResult(

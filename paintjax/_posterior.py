@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import time
 from collections.abc import Mapping, Sequence
@@ -131,8 +132,8 @@ class LogPosterior:
         self.forward = forward
         self.chunk = int(chunk)
         self.measured = check_measured(measured, len(forward.aspecular_deg))
-        if not (float(instrument_sd) > 0):
-            raise ValueError(f"instrument_sd must be > 0, got {instrument_sd!r}")
+        if not (0 < float(instrument_sd) < float("inf")):
+            raise ValueError(f"instrument_sd must be a finite number > 0 [L*], got {instrument_sd!r}")
         self.instrument_sd = float(instrument_sd)
         self.fixed = dict(fixed or {})
         self.bounds = dict(bounds or {})
@@ -290,7 +291,12 @@ def sample_posterior(
         backend_path.parent.mkdir(parents=True, exist_ok=True)
         backend = emcee.backends.HDFBackend(str(backend_path))
         old = _read_meta(backend_path) if backend_path.exists() else None
-        if resume and old == meta and backend.iteration > 0:
+        try:
+            stored = backend.iteration
+        except OSError as err:  # e.g. a run killed while emcee wrote in place
+            raise ValueError(f"backend_path {str(backend_path)!r} is not a readable emcee chain ({err}); move or delete it to "
+                             "start a new chain") from None
+        if resume and old == meta and stored > 0:
             state = None  # continue from the stored last sample (and random state)
         else:
             backend.reset(walkers, p)
@@ -326,14 +332,23 @@ def _initial_ball(lp: LogPosterior, init, walkers: int, rng, seed: int) -> np.nd
         values = dict(fr.values)
     elif isinstance(init, FitResult):
         values = dict(init.values)
-    else:
+    else:  # a user's dict: names and ranges checked, not silently mended
         values = dict(init)
+        unknown = sorted(set(values) - set(spec.names) - set(lp.fixed))
+        if unknown:
+            raise ValueError(f"init names {unknown} are not parameters of this posterior (free: {', '.join(spec.names)})")
+        for prm in spec.parameters:
+            if prm.name in values:
+                v = float(values[prm.name])
+                if not (math.isfinite(v) and prm.lower <= v <= prm.upper):
+                    raise ValueError(f"init value of {prm.name} must lie in [{prm.lower:g}, {prm.upper:g}] {prm.unit}".rstrip()
+                                     + f", got {values[prm.name]!r}")
     x = []
     for prm in spec.parameters:
         v = float(values.get(prm.name, prm.default))
         if prm.name == "discrepancy":
             v = max(v, 0.5)
-        span = prm.upper - prm.lower
+        span = prm.upper - prm.lower  # only a value on a bound is nudged inside (the transform maps it to ±inf)
         x.append(float(np.clip(v, prm.lower + 1e-3 * span, prm.upper - 1e-3 * span)))
     u0 = np.asarray(spec.to_unconstrained(np.array(x)))
     U = u0[None, :] + 1e-2 * rng.standard_normal((walkers, len(spec)))

@@ -471,7 +471,7 @@ def _tracer_emulator_class():
                 return np.sqrt(held**2 + np.asarray(self.seed_spread_sd) ** 2)
 
             def fingerprint(self):
-                return f"TracerEmulator({self.key},spread={self.seed_spread_sd})"
+                return f"Tracer{super().fingerprint()},spread={self.seed_spread_sd}"  # the GP fit too, as Emulator's
 
         _CLASS = TracerEmulator
     return _CLASS

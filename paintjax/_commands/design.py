@@ -21,9 +21,9 @@ def register(sub) -> None:
     p.add_argument("--target", required=True, help="five target L* values, e.g. 140,110,60,35,30")
     p.add_argument("--weights", help="five non-negative weights (default 1,1,1,1,1; 0 ignores an angle)")
     p.add_argument("--tolerance", type=float, default=1.0, help="largest acceptable |ΔL*| per weighted angle (default 1)")
-    add_model_arguments(p)
+    add_model_arguments(p, starts=16)
     add_json_argument(p)
-    p.set_defaults(func=run, starts=16)
+    p.set_defaults(func=run)
 
 
 def compute(args):

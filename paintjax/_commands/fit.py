@@ -34,14 +34,14 @@ def parse_free(text, default) -> tuple[str, ...]:
     return names
 
 
-def add_model_arguments(p) -> None:
+def add_model_arguments(p, *, starts: int = 8) -> None:
     from .._forward import FORWARDS
 
     p.add_argument("--forward", default="analytic", choices=sorted(FORWARDS),
                    help="forward model: " + "; ".join(f"{k}: {v[1]}" for k, v in FORWARDS.items()))
     p.add_argument("--free", help=f"comma-separated free parameters (default {','.join(DEFAULT_FREE)})")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE", help="hold a parameter at a value (repeatable)")
-    p.add_argument("--starts", type=int, default=8, help="least-squares starts (default 8)")
+    p.add_argument("--starts", type=int, default=starts, help=f"least-squares starts (default {starts})")
     p.add_argument("--seed", type=int, default=0, help="seed of starts and sampler (default 0)")
 
 
@@ -102,6 +102,9 @@ def compute(args) -> dict:
         "chi2": fr.chi2,
         "status": fr.status,
         "converged": fr.success,
+        "at_bound": list(fr.at_bound),
+        "dof": fr.dof,
+        "covariance_scale": fr.scale2,
         "posterior": None,
         "_fit": fr,
     }
