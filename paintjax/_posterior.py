@@ -292,7 +292,7 @@ def sample_posterior(
         backend = emcee.backends.HDFBackend(str(backend_path))
         old = _read_meta(backend_path) if backend_path.exists() else None
         try:
-            stored = backend.iteration
+            stored = backend.iteration if backend_path.exists() else 0
         except OSError as err:  # e.g. a run killed while emcee wrote in place
             raise ValueError(f"backend_path {str(backend_path)!r} is not a readable emcee chain ({err}); move or delete it to "
                              "start a new chain") from None

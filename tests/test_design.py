@@ -54,8 +54,9 @@ def test_design_bad_inputs():
         design_to_target(MIRROR, [140, 110, 60])
     with pytest.raises(ValueError, match="target L\\* values must be finite"):
         design_to_target(MIRROR, [140, 110, 60, 35, -30])
-    with pytest.raises(ValueError, match="tolerance must be > 0"):
-        design_to_target(MIRROR, [140, 110, 60, 35, 30], tolerance=0)
+    for bad in (0, float("inf")):
+        with pytest.raises(ValueError, match="tolerance must be a finite number > 0"):
+            design_to_target(MIRROR, [140, 110, 60, 35, 30], tolerance=bad)
     with pytest.raises(ValueError, match="must not include discrepancy"):
         design_to_target(MIRROR, [140, 110, 60, 35, 30], free=("shape", "discrepancy"))
 

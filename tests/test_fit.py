@@ -109,6 +109,25 @@ def test_discrepancy_moment_estimate():
     assert np.isnan(fr.stderr["discrepancy"])
 
 
+def test_unidentified_parameters_get_infinite_errors():
+    """Three weighted angles cannot fix three parameters of which the data see a flat direction:
+    the pseudo-inverse's zero variance would claim a precision the data do not have."""
+    y = _truth_curve()
+    full = fit_least_squares(MIRROR, y, free=("shape", "scale", "diffuse"), n_starts=3)
+    assert all(np.isfinite(v) and v > 0 for v in full.stderr.values())
+    with pytest.warns(RuntimeWarning, match="the data do not identify"):
+        two = fit_least_squares(MIRROR, y, free=("shape", "scale", "diffuse"), weights=[1, 1, 0, 0, 0], n_starts=3)
+    assert two.dof < 0 and any(np.isinf(v) for v in two.stderr.values())
+
+
+def test_discrepancy_estimate_ignores_weight_scale():
+    y = _truth_curve() + np.array([3.0, -3.0, 3.0, -3.0, 3.0])
+    kw = dict(free=("shape", "scale", "discrepancy"), fixed={"diffuse": 0.15}, n_starts=3)
+    a = fit_least_squares(MIRROR, y, weights=[1] * 5, **kw).discrepancy
+    b = fit_least_squares(MIRROR, y, weights=[2] * 5, **kw).discrepancy
+    assert a == pytest.approx(b, rel=1e-6)
+
+
 def test_fit_bad_inputs():
     with pytest.raises(ValueError, match="measured must have 5 values"):
         fit_least_squares(MIRROR, [1.0, 2.0, 3.0])
@@ -118,8 +137,9 @@ def test_fit_bad_inputs():
         fit_least_squares(MIRROR, _truth_curve(), weights=[1, 1, -1, 1, 1])
     with pytest.raises(ValueError, match="n_starts must be >= 1"):
         fit_least_squares(MIRROR, _truth_curve(), n_starts=0)
-    with pytest.raises(ValueError, match="instrument_sd must be > 0"):
-        fit_least_squares(MIRROR, _truth_curve(), instrument_sd=0.0)
+    for bad in (0.0, np.inf):
+        with pytest.raises(ValueError, match="instrument_sd must be a finite number > 0"):
+            fit_least_squares(MIRROR, _truth_curve(), instrument_sd=bad)
     with pytest.raises(ValueError, match="both free and fixed"):
         fit_least_squares(MIRROR, _truth_curve(), free=("shape",), fixed={"shape": 2.0})
     with pytest.raises(ValueError, match="x0 of shape must lie"):
@@ -147,6 +167,8 @@ def test_emulator_cached_with_measured_error(tmp_path):
     assert fr.values["shape"] == pytest.approx(2.6, rel=0.05) and fr.values["scale"] == pytest.approx(1.9, rel=0.05)
     with pytest.raises(ValueError, match="exceed the emulator's training box"):
         fit_least_squares(em, y, free=("shape", "scale"), bounds={"shape": (1.0, 4.0)})
+    with pytest.raises(ValueError, match=r"fixed value of scale must lie in the emulator's training box \[1.2, 3.5\]"):
+        fit_least_squares(em, y, free=("shape",), fixed={"scale": 0.5})  # the GP would clip it to 1.2 silently
 
 
 def test_emulator_with_physics_informed_mean(tmp_path):

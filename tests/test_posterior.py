@@ -78,6 +78,10 @@ def test_hdf5_backend_resumes_after_interruption(tmp_path):
     # An incompatible request (different data) restarts the chain instead of mixing them.
     post2 = sample_posterior(MIRROR, y + 1.0, max_steps=40, **kw)
     assert post2.steps == 40
+    # A damaged chain file (a run killed while emcee wrote in place) is named, not a raw h5py error.
+    path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    with pytest.raises(ValueError, match="is not a readable emcee chain"):
+        sample_posterior(MIRROR, y, max_steps=40, **kw)
 
 
 def test_outputs_netcdf_corner_and_pool(tmp_path):
@@ -123,3 +127,7 @@ def test_posterior_bad_inputs():
         LogPosterior(MIRROR, y, free=FREE, fixed={"discrepancy": -1.0})
     with pytest.raises(ValueError, match="unknown parameter"):
         sample_posterior(MIRROR, y, free=("shape", "tilt"), progress=False)
+    with pytest.raises(ValueError, match="init value of shape must lie"):
+        sample_posterior(MIRROR, y, free=FREE, fixed=FIXED, init={"shape": 500.0}, progress=False)
+    with pytest.raises(ValueError, match=r"init names \['shap'\]"):
+        sample_posterior(MIRROR, y, free=FREE, fixed=FIXED, init={"shap": 2.0}, progress=False)
