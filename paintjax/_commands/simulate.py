@@ -106,7 +106,8 @@ def register(sub) -> None:
                    "(the original study's rotation of the in-plane lobe about the specular direction)")
     p.add_argument("--correlation", choices=CORRELATIONS, default="gaussian",
                    help="autocorrelation of the wave table's synthesised platelet profiles at the given σ, τ (1/e length): "
-                   "gaussian (default) or exponential; wave only")
+                   "gaussian (default) or exponential (a non-differentiable surface, so its lobes are not converged in the "
+                   "solver's sampling; a trend, not an answer); wave only")
     p.add_argument("--reflectance", type=float, help="constant platelet reflectance in [0, 1] (mirror only); default: Fresnel of Al")
     p.add_argument("--primer-albedo", type=float, default=DEFAULT_PRIMER_ALBEDO,
                    help=f"Lambertian primer albedo in [0, 1] (default {DEFAULT_PRIMER_ALBEDO})")
