@@ -92,7 +92,7 @@ def _load(path: Path, kind: str, key: str) -> dict | None:
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError, json.JSONDecodeError) as err:
         warnings.warn(f"cache file {path} unreadable ({type(err).__name__}); rebuilding", stacklevel=3)
         return None
-    if meta.get("format") != CACHE_FORMAT_VERSION or meta.get("kind") != kind or meta.get("key") != key:
+    if not isinstance(meta, dict) or meta.get("format") != CACHE_FORMAT_VERSION or meta.get("kind") != kind or meta.get("key") != key:
         warnings.warn(f"cache file {path} belongs to another build or format; rebuilding", stacklevel=3)
         return None
     if meta.get("sha256") != _arrays_digest(arrays):

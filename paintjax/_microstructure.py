@@ -417,7 +417,9 @@ def boolean_platelet_array(
         width, thickness: square edge w and thickness t [µm], > 0.
         tilt: None (horizontal), `GammaTilt` or (shape, scale_deg).
         margin: distance of the centres from z = 0 and z = h_b [µm], ≥ 0; default w/2, which keeps
-            a box of any tilt whose t ≤ w inside the film.
+            moderately tilted boxes inside the film (a box's vertical half extent reaches
+            ½√(2w² + t²) at 90° tilt, so steep tilt laws can protrude and `build_grid` then refuses
+            the array; pass that value for any tilt).
 
     Returns:
         PlateletArray.

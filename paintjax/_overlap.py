@@ -255,7 +255,7 @@ def periodic_overlap(ca, Ra, ea, cb, Rb, eb, tile, test: str = "sat") -> np.ndar
     for kx in kxs:
         for ky in kys:
             d = d0 + np.array([kx * L[0], ky * L[1], 0.0])
-            cand = np.all(np.abs(d) < reach, axis=-1) & ~out
+            cand = np.all(np.abs(d) <= reach, axis=-1) & ~out  # ≤: touching counts (coplanar mid-planes: reach_z = 0)
             if not np.any(cand):
                 continue
             idx = np.flatnonzero(cand)

@@ -29,6 +29,15 @@ def check_gamma_parameters(shape, scale_deg) -> None:
         if np.any(~np.isfinite(a)) or np.any(a <= 0) or np.any(a > hi):
             unit = " degrees" if name == "scale" else ""
             raise ValueError(f"tilt gamma {name} must lie in (0, {hi:g}]{unit}, got {v!r}")
+    try:
+        k, th = np.asarray(shape, dtype=float), np.asarray(scale_deg, dtype=float)
+    except (TypeError, ValueError):
+        return  # traced
+    from scipy.special import gammainc
+
+    if np.any(gammainc(k, MAX_TILT_DEG / th) < 1e-12):  # the law truncated to [0, 90]° would be empty
+        raise ValueError(f"tilt gamma law (shape {shape!r}, scale {scale_deg!r}°) has no mass below {MAX_TILT_DEG:g}° "
+                         "(mean tilt shape × scale far beyond it): choose a smaller shape or scale")
 
 
 @functools.lru_cache(maxsize=16)
@@ -72,12 +81,13 @@ class GammaTilt(eqx.Module):
     def density_per_solid_angle(self, cos_tilt: ArrayLike) -> Float[Array, "..."]:
         """Density p(m) of platelet normals per steradian of the upper hemisphere.
 
-        p(m) = pdf_deg(t)·(180/π) / (2π sin t), so that ∫ p dω = 1.
+        p(m) = pdf_deg(t)·(180/π) / (2π sin t), so that ∫ p dω = 1. At the pole (t = 0, a point of
+        zero measure, where p → 0, a constant or ∞ for shape >, =, < 2) it is taken at t = 1e-6 rad,
+        finite in any precision.
         """
         c = jnp.clip(jnp.asarray(cos_tilt), -1.0, 1.0)
-        t = jnp.arccos(c)
-        s = jnp.maximum(jnp.sin(t), 1e-300)
-        return self.pdf_deg(jnp.rad2deg(t)) * (180.0 / jnp.pi) / (2.0 * jnp.pi * s)
+        t = jnp.maximum(jnp.arccos(c), 1e-6)
+        return self.pdf_deg(jnp.rad2deg(t)) * (180.0 / jnp.pi) / (2.0 * jnp.pi * jnp.sin(t))
 
     def sample_deg(self, key: PRNGKeyArray, n: int) -> Float[Array, " n"]:
         """n tilts [deg] by inverse-CDF sampling of the truncated law (tabulated, 4097 nodes)."""
@@ -97,9 +107,10 @@ class GammaTilt(eqx.Module):
         st = jnp.sqrt(jnp.clip(1.0 - ct**2, 0.0, 1.0))
         a = jnp.cos(t) * jnp.abs(ct)
         b = jnp.sin(t) * st
-        ratio = jnp.clip(a / jnp.maximum(b, 1e-300), 0.0, 1.0)
-        crossing = (2.0 / jnp.pi) * (jnp.sqrt(jnp.clip(b**2 - a**2, 0.0)) + a * jnp.arcsin(ratio))
-        mean_abs = jnp.where(a >= b, a, crossing)
+        cross = b > a  # the platelet plane cuts the view direction's azimuth circle
+        ratio = jnp.where(cross, a / jnp.where(cross, b, 1.0), 1.0)  # safe branches: finite gradients
+        crossing = (2.0 / jnp.pi) * (jnp.sqrt(jnp.where(cross, b**2 - a**2, 1.0)) + a * jnp.arcsin(ratio))
+        mean_abs = jnp.where(cross, crossing, a)
         return jnp.sum(wt * mean_abs, axis=-1)
 
     def side_wall_area(self, cos_theta: ArrayLike, nodes: int = 64) -> Float[Array, "..."]:

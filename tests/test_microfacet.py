@@ -191,3 +191,16 @@ def test_side_walls_darken_and_validate():
     np.testing.assert_array_equal(np.asarray(pj.microfacet_reflectance_factor(geo, tilt, side_walls=0.0)), thin)
     with pytest.raises(ValueError, match="side_walls"):
         pj.microfacet_reflectance_factor(geo, tilt, side_walls=-0.1)
+
+
+def test_tilt_density_is_finite_at_the_pole_in_float32():
+    """The half vector along the normal (γ = 0) must not give 0/0 in the default float32."""
+    import jax
+
+    tilt = pj.GammaTilt(2.29, 2.18)
+    p = tilt.density_per_solid_angle(jnp.float32(1.0))  # float32 arithmetic, also with x64 enabled
+    assert np.isfinite(np.asarray(p))
+    g = jax.grad(lambda c: tilt.projected_area(c))(0.7)  # safe branches: a finite gradient
+    assert np.isfinite(float(g))
+    with pytest.raises(ValueError, match="has no mass below 90"):
+        pj.GammaTilt(200.0, 50.0)
