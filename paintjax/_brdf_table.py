@@ -64,7 +64,7 @@ delta (see `paintjax._beckmann`). For wave sources the profile-averaged coherent
 first made unbiased and confined to the specular beam (`debias_coherent`). Unpolarised (the
 source's default). Incidences beyond the last tabulated one (89° by default) use the last table
 (constant extrapolation in μ, documented not silent). Wave tables take incidences above the
-solver's beam limit (≈79° for 20 µm profiles) from the 1-D Kirchhoff shape with a Fresnel-scaled
+solver's beam limit (≈74.3° for 20 µm profiles) from the 1-D Kirchhoff shape with a Fresnel-scaled
 reflectance (`_wave_with_grazing_extension`; `wave_solved` records which).
 
 **Sampling.** A Gaussian mixture in β about the specular point: the inverse-Abel lobe of the

@@ -1,4 +1,4 @@
-"""Analytic single-scatter ("specular microfacet") model of a hiding platelet layer under a flat coat.
+"""Analytic single-scatter ("specular microfacet") model of a hiding platelet layer under a flat or wavy coat.
 
 A semi-infinite random medium of thin platelets with normal density p(m) per steradian (gamma tilt,
 uniform azimuth). A ray entering along −ω_i first meets a platelet of normal m with probability

@@ -378,7 +378,7 @@ def tracer_emulator(
             tables and the seed-spread record live in the array cache (`$PAINTJAX_CACHE`).
         n_train, n_test, seed, batch: design of `build_emulator`.
         spread_theta, spread_seeds: where and with which seeds the seed-to-seed spread is measured
-            (None: not measured, `error_sd` is the held-out RMS alone).
+            (None: not measured, `error_sd` is the cross-validated RMS alone).
         progress: progress bar over the design and one line per tracer run.
         analytic_mean: physics-informed GP (default): the analytic single-scatter model
             (`AnalyticForward`, diffuse 0) is the linear prior mean per angle and its L* at 15°,
@@ -494,5 +494,5 @@ def register() -> None:
         "tracer-emulator",
         tracer_emulator,
         "GP emulator of the ray tracer (wave BRDF grid, common random numbers; built once, cached; "
-        "error = held-out RMS ⊕ seed-to-seed spread)",
+        "error = cross-validated RMS ⊕ seed-to-seed spread)",
     )

@@ -15,7 +15,7 @@ from paintjax._cli import main
 def test_microfacet_json_round_trip(capsys):
     assert main(["microfacet", "--sample", "silver1", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert set(out) == {"aspecular_deg", "reflectance_factor", "L_star", "flop_index"}
+    assert set(out) == {"aspecular_deg", "tilt_probed_deg", "reflectance_factor", "L_star", "flop_index"}
     assert out["aspecular_deg"] == list(pj.STANDARD_ASPECULAR)
     s = pj.load_sample("silver1")
     tilt = pj.GammaTilt(s.tilt_shape.value, s.tilt_scale.value)

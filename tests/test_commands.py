@@ -36,7 +36,8 @@ def test_table1_json_contract_and_consistency(table1_run):
     assert rc == 0
     assert set(data) == {"samples", "notes"} and set(data["samples"]) == {"silver1", "silver2"}
     for name, row in data["samples"].items():
-        assert set(row) == {"measured", "hybrid", "hybrid_se", "mirror", "analytic", "rms_hybrid"}
+        assert set(row) == {"measured", "hybrid", "hybrid_se", "mirror", "analytic", "rms_hybrid"} | {
+            "mirror_se", "rms_mirror", "rms_analytic", "flop", "resolved"}
         s = load_sample(name)
         np.testing.assert_array_equal(row["measured"], np.asarray(s.L_star))
         hybrid, se = np.asarray(row["hybrid"]), np.asarray(row["hybrid_se"])

@@ -56,7 +56,7 @@ def compute(sample: str = "silver1", shape=None, scale=None, reflectance=None, n
 def run(args) -> int:
     r = compute(args.sample, args.shape, args.scale, args.reflectance, args.n, not args.no_exit_occlusion, not args.no_hot_spot)
     if args.json:
-        print_json({k: r[k] for k in ("aspecular_deg", "reflectance_factor", "L_star", "flop_index")})
+        print_json({k: r[k] for k in ("aspecular_deg", "tilt_probed_deg", "reflectance_factor", "L_star", "flop_index")})
         return 0
     print(f"Analytic single-scatter model, {r['sample']} (45° illumination, mirror platelets, "
           f"{'hot spot over the platelet widths' if r['hot_spot'] else 'independent entry and exit paths'})")

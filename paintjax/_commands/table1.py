@@ -144,7 +144,8 @@ def compute(target_se: float = DEFAULT_TARGET_SE, mirror_rays: int = 131072, see
     return out
 
 
-_JSON_KEYS = ("measured", "hybrid", "hybrid_se", "mirror", "analytic", "rms_hybrid")
+_JSON_KEYS = ("measured", "hybrid", "hybrid_se", "mirror", "analytic", "rms_hybrid")  # the schema
+_JSON_EXTRA = ("mirror_se", "rms_mirror", "rms_analytic", "flop", "resolved")  # and what the table shows
 
 
 def _plot(result: dict, folder) -> str:
@@ -187,7 +188,7 @@ def run(args) -> int:
     if args.json:
         for note in r["notes"]:
             print(f"NOTE: {note}", file=sys.stderr)
-        keys = _JSON_KEYS + (("hybrid_Lab", "hybrid_Lab_se") if args.spectral else ())
+        keys = _JSON_KEYS + _JSON_EXTRA + (("hybrid_Lab", "hybrid_Lab_se") if args.spectral else ())
         print_json({"samples": {k: {key: v[key] for key in keys if key in v} for k, v in r["samples"].items()}, "notes": r["notes"]})
         return status
     gamma = r["aspecular_deg"]
