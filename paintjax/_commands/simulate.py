@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import hashlib
 import sys
-import warnings
 import time
+import warnings
 from importlib import resources
 
 import numpy as np
@@ -257,14 +257,12 @@ def simulate(
     (rays so far, the worst L* standard error, seconds) and one per wavelength.
     """
     from .._grid import build_grid
-    from .._samples import load_sample
-    from .._spectral import SPECTRAL_NODES_NM, combine_spectral
-    from .._tracer import trace
-
     from .._interface import check_waviness
     from .._microstructure import tilt_ks
+    from .._samples import load_sample
+    from .._spectral import SPECTRAL_NODES_NM, combine_spectral
     from .._tilt import GammaTilt
-    from .._tracer import _check_range, _seed_state
+    from .._tracer import _check_range, _seed_state, trace
 
     t0 = time.perf_counter()
     s = load_sample(sample)
