@@ -162,6 +162,12 @@ def _problem(forward: ForwardModel, free, fixed, bounds):
     return spec, sub, restricted
 
 
+def check_instrument_sd(instrument_sd) -> None:
+    """The instrument repeatability per angle: a finite number > 0 [L*]."""
+    if not (0 < float(instrument_sd) < float("inf")):
+        raise ValueError(f"instrument_sd must be a finite number > 0 [L*], got {instrument_sd!r}")
+
+
 def _unidentified(Jx: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
     """Parameters with a component in the numerical null space of the (column-normalised) Jacobian."""
     col = np.linalg.norm(Jx, axis=0)
@@ -214,8 +220,7 @@ def fit_least_squares(
     t0 = time.perf_counter()
     m = len(forward.aspecular_deg)
     y = check_measured(measured, m)
-    if not (0 < float(instrument_sd) < float("inf")):
-        raise ValueError(f"instrument_sd must be a finite number > 0 [L*], got {instrument_sd!r}")
+    check_instrument_sd(instrument_sd)
     if int(n_starts) < 1:
         raise ValueError(f"n_starts must be >= 1, got {n_starts!r}")
     w = np.ones(m) if weights is None else np.asarray(weights, dtype=float).reshape(-1)

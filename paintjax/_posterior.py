@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, check_measured, fit_least_squares
+from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, check_instrument_sd, check_measured, fit_least_squares
 from ._forward import ForwardModel
 from ._io import atomic_path, atomic_savefig
 
@@ -132,8 +132,7 @@ class LogPosterior:
         self.forward = forward
         self.chunk = int(chunk)
         self.measured = check_measured(measured, len(forward.aspecular_deg))
-        if not (0 < float(instrument_sd) < float("inf")):
-            raise ValueError(f"instrument_sd must be a finite number > 0 [L*], got {instrument_sd!r}")
+        check_instrument_sd(instrument_sd)
         self.instrument_sd = float(instrument_sd)
         self.fixed = dict(fixed or {})
         self.bounds = dict(bounds or {})

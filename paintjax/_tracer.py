@@ -903,6 +903,13 @@ def _seed_state(seed) -> int:
     return (x ^ (x >> 29) ^ (x >> 47)) & 0xFFFFFFFF
 
 
+def check_ray_count(rays, options: TracerOptions | None = None, name: str = "rays") -> None:
+    """At least one ray per batch of the batch-means standard error (`TracerOptions.batches`)."""
+    batches = (options or TracerOptions()).batches
+    if int(rays) < batches:
+        raise ValueError(f"{name} must be at least {batches} (one per batch of the standard error), got {rays!r}")
+
+
 def _check_range(name, value, lo, hi, lo_open=False):
     try:
         v = float(value)
@@ -990,17 +997,13 @@ def _summarise(tally: np.ndarray, m: int, batches: int):
     wgt = np.tile(counts / np.maximum(np.mean(counts, axis=0), 1e-300), 2)
     se = np.sqrt(np.sum((wgt * (per_batch - est)) ** 2, axis=0) / (batches * (batches - 1)))
     ledger = total[2 * m : 2 * m + nl] / N[0]
-    # the ledger's batch means (per forward ray; the first column counts every forward ray)
-    ledger_batch = groups[:, 2 * m : 2 * m + nl] / np.maximum(counts[:, :1], 1.0)
-    w0 = counts[:, :1] / max(float(np.mean(counts[:, 0])), 1e-300)
-    ledger_se = np.sqrt(np.sum((w0 * (ledger_batch - ledger)) ** 2, axis=0) / (batches * (batches - 1)))
-    return est, se, per_batch, (ledger, ledger_se), total[-m:]
+    return est, se, per_batch, ledger, total[-m:]
 
 
 def _combine(parts, m: int):
     """Forward pass + reverse pool (column j = source j = detector j): estimates, SE (independent
     passes add in quadrature), per-batch sums, the forward pass's energy ledger, rays of all passes."""
-    est, se, per_batch, ledger, n = parts[0]  # ledger: (values, batch-means SE) of the forward pass
+    est, se, per_batch, ledger, n = parts[0]
     est, per_batch, var, rays = est.copy(), per_batch.copy(), se**2, int(n[0])
     for e, s, pb, _, n in parts[1:]:
         est[:m] += e[:m]
@@ -1077,8 +1080,7 @@ def trace(
     _check_range("clearcoat_thickness", clearcoat_thickness, 0.0, 1e4)
     waviness_deg = check_waviness(waviness_deg)
     opt = options or TracerOptions()
-    if int(rays) < opt.batches:
-        raise ValueError(f"rays must be at least {opt.batches} (one per batch of the standard error), got {rays!r}")
+    check_ray_count(rays, opt)
     if target_se_lstar is not None:
         _check_range("target_se_lstar", target_se_lstar, 0.0, 100.0, lo_open=True)
         if max_rays is not None and int(max_rays) < int(rays):
@@ -1155,14 +1157,12 @@ def trace(
         grow = int(np.ceil(n_local * min(worst**2 * 1.1 - 1.0, _MAX_GROWTH - 1.0)))
         n_local = min(limit_local, n_local + max(grow, opt.lanes))
     seconds = time.perf_counter() - t0
-    ledger, ledger_se = ledger
-    i_pl = LEDGER_KEYS.index("absorbed_platelets")
-    created, created_se = -float(ledger[i_pl]), float(ledger_se[i_pl])
+    created = -float(ledger[LEDGER_KEYS.index("absorbed_platelets")])
     # no significance test: creation makes the estimate heavy-tailed (path weights grow per bounce), so
     # its SE is no guide; a lossy BRDF's net absorption is positive, a lossless one's exactly 0
     if not np.all(np.isfinite(ledger)) or created > MAX_CREATED_ENERGY:
         raise EnergyCreationError(
-            f"brdf creates energy: the platelets return {created:.3g} ± {created_se:.2g} of the incident flux more than they "
+            f"brdf creates energy: the platelets return {created:.3g} of the incident flux more than they "
             f"receive (allowed: {MAX_CREATED_ENERGY:g}), so its albedo exceeds 1 somewhere (an unconverged wave table, or the "
             "Kirchhoff approximation at grazing incidence); the result would be unphysical")
     R, Rse = est[:m], se[:m]  # L, Lse: the last round's

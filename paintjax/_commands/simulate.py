@@ -33,16 +33,9 @@ def check_adaptive(target_se: float, max_rays: int) -> None:
     """Validate the adaptive rule's L* SE target (0, 10] and its ray ceiling (≥ one ray per batch)."""
     if not (0.0 < float(target_se) <= 10.0):
         raise ValueError(f"target_se must lie in (0, 10] L* units, got {target_se!r}")
-    check_rays(max_rays, "max_rays")
+    from .._tracer import check_ray_count
 
-
-def check_rays(rays, name: str = "rays", options=None) -> None:
-    """At least one ray per batch of the batch-means standard error (`TracerOptions.batches`)."""
-    from .._tracer import TracerOptions
-
-    batches = (options or TracerOptions()).batches
-    if int(rays) < batches:
-        raise ValueError(f"{name} must be at least {batches} (one per batch of the standard error), got {rays!r}")
+    check_ray_count(max_rays, name="max_rays")
 
 
 def first_round_rays(target_se: float) -> int:
@@ -262,13 +255,13 @@ def simulate(
     from .._samples import load_sample
     from .._spectral import SPECTRAL_NODES_NM, combine_spectral
     from .._tilt import GammaTilt
-    from .._tracer import _check_range, _seed_state, trace
+    from .._tracer import _check_range, _seed_state, check_ray_count, trace
 
     t0 = time.perf_counter()
     s = load_sample(sample)
     # every cheap check before any table or array is built
     if rays is not None:
-        check_rays(rays, options=options)
+        check_ray_count(rays, options)
     else:
         check_adaptive(target_se, max_rays)
     array_overrides(s, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness)
