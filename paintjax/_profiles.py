@@ -38,6 +38,9 @@ class Profiles(eqx.Module):
         x: grid abscissae, centred on 0, spacing `spacing`.
         h, dh, d2h: heights, slopes and curvatures h'' for each profile.
         spacing: grid step Δx (static).
+        covariance: for synthesised profiles, the exact covariance of the generating process at
+            lags 0, Δx, …, (N−1)Δx (periodic: Cov(h_n, h_m) = covariance[(n − m) mod N]); None for
+            measured or hand-made profiles. The wave solver uses it for its Kirchhoff control variate.
     """
 
     x: Float[Array, " N"]
@@ -45,6 +48,7 @@ class Profiles(eqx.Module):
     dh: Float[Array, "B N"]
     d2h: Float[Array, "B N"]
     spacing: float = eqx.field(static=True)
+    covariance: Float[Array, " N"] | None = None
 
     @property
     def num_profiles(self) -> int:
@@ -131,7 +135,8 @@ def synthesize_profiles(
     h = jnp.fft.irfft(z, n=n, axis=-1)
     dh = jnp.fft.irfft(1j * kk * z, n=n, axis=-1)
     d2h = jnp.fft.irfft(-(kk**2) * z, n=n, axis=-1)
-    return Profiles(jnp.asarray(x), h, dh, d2h, float(dx))
+    covariance = jnp.fft.irfft(amp**2, n=n)  # circulant covariance with eigenvalues amp²
+    return Profiles(jnp.asarray(x), h, dh, d2h, float(dx), covariance)
 
 
 def autocorrelation(h: Float[Array, "... N"]) -> Float[Array, "... N"]:

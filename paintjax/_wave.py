@@ -71,12 +71,17 @@ class WaveLobes(eqx.Module):
     Attributes:
         incidence_deg: incidence angles θ_i (I,).
         theta_s_deg: scattering angles θ_s (S,); specular at θ_s = θ_i, backscatter at −θ_i.
-        sigma: total normalised bistatic coefficient [1/rad] (I, S); ∫σ dθ_s = reflected.
-        sigma_coherent: coherent part |⟨ψ_s^N⟩|², normalised the same way (I, S), with ⟨·⟩ the mean
-            over the B profiles (this estimate carries σ_incoherent/B of speckle; see
-            `sigma_coherent_unbiased`).
-        sigma_sem: standard error of `sigma` across profiles (I, S) (0 for one profile).
-        reflected: reflected energy fraction ∫σ dθ_s over (−90°, 90°) (I,).
+        sigma: total normalised bistatic coefficient [1/rad] (I, S), the ensemble mean estimated from
+            the B profiles (with the Kirchhoff control variate when the profiles carry their process
+            covariance, see `control_variate`); ∫σ dθ_s ≈ reflected.
+        sigma_coherent: coherent part |E ψ_s^N|², normalised the same way (I, S): the unbiased estimate
+            |ψ̄|² − s²/B (s² the sample variance over profiles) inside the specular beam
+            (|sinθ_s − sinθ_i| < `COHERENT_WINDOW`/(k g)), 0 outside it; may dip below 0 in the speckle.
+        sigma_sem: standard error of `sigma` (I, S) (0 for one profile).
+        reflected: reflected energy fraction ∫σ dθ_s over (−90°, 90°) (I,) (mean over profiles).
+        reflected_se: its standard error across profiles (I,).
+        coherent_reflectance: ∫σ_coherent dθ_s (I,), unbiased for any B ≥ 2 (may be < 0 by its noise).
+        coherent_reflectance_se: its standard error (I,) (delete-a-group jackknife over the profiles).
         absorbed: absorbed energy fraction (I,) (0 for perfect conductors).
         boundary, polarization: what was solved (static); num_profiles: B (static).
     """
@@ -87,6 +92,9 @@ class WaveLobes(eqx.Module):
     sigma_coherent: Float[Array, "I S"]
     sigma_sem: Float[Array, "I S"]
     reflected: Float[Array, " I"]
+    reflected_se: Float[Array, " I"]
+    coherent_reflectance: Float[Array, " I"]
+    coherent_reflectance_se: Float[Array, " I"]
     absorbed: Float[Array, " I"]
     boundary: str = eqx.field(static=True, default="impedance")
     polarization: str = eqx.field(static=True, default="unpolarized")
@@ -94,16 +102,8 @@ class WaveLobes(eqx.Module):
 
     @property
     def sigma_incoherent(self) -> Float[Array, "I S"]:
-        """σ − σ_coherent (mean of |ψ − ψ̄|² over the profiles)."""
+        """σ − σ_coherent (the diffuse part)."""
         return self.sigma - self.sigma_coherent
-
-    @property
-    def sigma_coherent_unbiased(self) -> Float[Array, "I S"]:
-        """(B σ_coh − σ)/(B − 1): unbiased for |⟨ψ⟩|², may dip below 0 in the speckle (B ≥ 2)."""
-        b = self.num_profiles
-        if b < 2:
-            raise ValueError("sigma_coherent_unbiased needs num_profiles ≥ 2")
-        return (b * self.sigma_coherent - self.sigma) / (b - 1)
 
     @property
     def energy(self) -> Float[Array, " I"]:
@@ -238,7 +238,8 @@ def layer_operators(h, dh, d2h, k, dx, band: int):
 
 
 def _solve_one(h, dh, d2h, x, inc, ang, etas, k, dx, g, kinds, band):
-    """One profile, all channels: far-field amplitudes ψ_s^N (C, A, I) and absorbed power (C, I)."""
+    """One profile, all channels: far-field amplitudes ψ_s^N (C, A, I), absorbed power (C, I) and the
+    Kirchhoff control sums S (A, I) = Σ_n e^{−x_n²/g²} e^{−i(q_x x_n + q_z h_n)} (see `control_variate`)."""
     # optimization_barrier: materialise the kernels once; otherwise XLA fuses (and recomputes) the
     # Hankel evaluation into every consumer (one per channel), tripling the fill time.
     S, D = jax.lax.optimization_barrier(layer_operators(h, dh, d2h, k, dx, band))
@@ -246,6 +247,8 @@ def _solve_one(h, dh, d2h, x, inc, ang, etas, k, dx, g, kinds, band):
     rhs = incident_field(x, h, inc, k, g)
     sa, ca = jnp.sin(ang)[:, None], jnp.cos(ang)[:, None]
     E = jax.lax.optimization_barrier(jnp.exp(-1j * k * (sa * x[None, :] + ca * h[None, :])))
+    plane = jnp.exp(1j * k * (x[:, None] * jnp.sin(inc)[None, :] - h[:, None] * jnp.cos(inc)[None, :]) - (x**2 / g**2)[:, None])
+    control = E @ plane
     eye = jnp.eye(h.shape[0], dtype=S.dtype)
     amps, absorbed = [], []
     for c, kind in enumerate(kinds):
@@ -260,7 +263,7 @@ def _solve_one(h, dh, d2h, x, inc, ang, etas, k, dx, g, kinds, band):
             EF = jax.lax.optimization_barrier(E * ((ca - dh[None, :] * sa) - eta * jac[None, :]))
             amps.append((-1j * k * dx) * (EF @ psi))
             absorbed.append(jnp.real(eta) * dx * jnp.sum(jnp.abs(psi) ** 2 * jac[:, None], axis=0))
-    return jnp.stack(amps), jnp.stack(absorbed)
+    return jnp.stack(amps), jnp.stack(absorbed), control
 
 
 @functools.partial(jax.jit, static_argnames=("kinds", "band", "batch_size"))
@@ -293,6 +296,128 @@ def quadrature_points(k: float, length_um: float) -> int:
     return int(math.ceil(k * length_um * math.pi / 4.0)) + 64
 
 
+#: Half-width of the specular beam window for the coherent part, in units of 1/(k g) in u = sinθ_s − sinθ_i
+#: (the tapered beam's coherent intensity ∝ e^{−(k g u)²/2} is e^{−18} at its edge).
+COHERENT_WINDOW = 6.0
+#: Fewest profiles for the control variate (its coefficient is a regression over the profiles).
+MIN_PROFILES_CONTROL = 4
+#: Groups of the delete-a-group jackknife of the coherent reflectance.
+JACKKNIFE_GROUPS = 16
+
+
+def expected_control_power(covariance, x, dx: float, g: float, k: float, inc_rad, ang_rad) -> np.ndarray:
+    """E|S|² of the Kirchhoff control sum S = Σ_n w_n e^{−i(q_x x_n + q_z h_n)}, w_n = e^{−x_n²/g²}, exactly
+    for the Gaussian process with periodic covariance C (lags 0…N−1): for jointly Gaussian heights
+    E e^{−iq_z(h_n − h_m)} = e^{−q_z²(C_0 − C_{n−m})}, so
+    E|S|² = Σ_d (Σ_m w_{m+d} w_m) cos(q_x d Δx) e^{−q_z²(C_0 − C_d)},  d = −(N−1)…N−1.
+
+    Returns:
+        (A, I) for the angles `ang_rad` (A,) and incidences `inc_rad` (I,).
+    """
+    cov = np.asarray(covariance, float)
+    n = cov.size
+    w = np.exp(-np.asarray(x, float) ** 2 / g**2)
+    lags = np.arange(-(n - 1), n)
+    cw = np.correlate(w, w, mode="full")  # Σ_m w_{m+d} w_m at d = −(N−1)…N−1
+    keep = cw > 1e-18 * cw.max()
+    lags, cw = lags[keep], cw[keep]
+    dc = cov[0] - cov[np.abs(lags) % n]
+    out = np.empty((np.size(ang_rad), np.size(inc_rad)))
+    for i, ti in enumerate(np.atleast_1d(inc_rad)):
+        qx = k * (np.sin(ang_rad) - np.sin(ti))
+        qz = k * (np.cos(ang_rad) + np.cos(ti))
+        out[:, i] = np.sum(cw * np.cos(qx[:, None] * lags * dx) * np.exp(-(qz[:, None] ** 2) * dc), -1)
+    return out
+
+
+def control_variate_mean(samples, control, expected):
+    """Ensemble mean of per-profile samples (B, ...) with a control variate, and its standard error.
+
+    With the Kirchhoff control K_p = |S_p|² of the same profiles (speckle nearly identical to the wave
+    solution's wherever Kirchhoff is good) and its exact expectation E K, the estimate
+    W̄ − β (K̄ − E K), β = cov(W, K)/var(K) per angle (the regression estimator: variance
+    var(W)(1 − ρ²), bias O(1/B)), keeps the wave solution's mean and removes the part of its
+    speckle that Kirchhoff predicts. `expected=None`: the plain mean. SE from the residuals
+    W_p − β K_p (ddof 2), or the plain SE (ddof 1); 0 for one profile.
+    """
+    b = samples.shape[0]
+    mean = jnp.mean(samples, axis=0)
+    if b < 2:
+        return mean, jnp.zeros_like(mean)
+    if expected is None:
+        return mean, jnp.std(samples, axis=0, ddof=1) / math.sqrt(b)
+    dk = control - jnp.mean(control, axis=0)
+    var_k = jnp.sum(dk**2, axis=0)
+    beta = jnp.where(var_k > 0, jnp.sum((samples - mean) * dk, axis=0) / jnp.where(var_k > 0, var_k, 1.0), 0.0)
+    est = mean - beta * (jnp.mean(control, axis=0) - jnp.asarray(expected))
+    resid = samples - beta * control
+    return est, jnp.std(resid, axis=0, ddof=2) / math.sqrt(b)
+
+
+def expected_control_amplitude(covariance, x, g: float, k: float, inc_rad, ang_rad) -> np.ndarray:
+    """E S = Σ_n w_n e^{−iq_x x_n} e^{−q_z² C_0/2} of the Kirchhoff control sum (see
+    `expected_control_power`), (A, I) complex."""
+    c0 = float(np.asarray(covariance)[0])
+    w = np.exp(-np.asarray(x, float) ** 2 / g**2)
+    qx = k * (np.sin(ang_rad)[:, None] - np.sin(inc_rad)[None, :])
+    qz = k * (np.cos(ang_rad)[:, None] + np.cos(inc_rad)[None, :])
+    phase = np.exp(-1j * qx[..., None] * np.asarray(x, float))  # (A, I, N)
+    return (phase @ w) * np.exp(-0.5 * qz**2 * c0)
+
+
+def coherent_estimate(amps, norm, window, theta_rad, control=None, expected=None):
+    """Unbiased coherent part from per-profile amplitudes (B, C, S, I).
+
+    Per angle and channel, the mean field Eψ is estimated by ψ̄ (or, with the Kirchhoff control
+    amplitudes S_p (B, S, I) and their exact mean E S, by the regression estimate
+    ψ̄ − β (S̄ − E S), β = Σ(ψ − ψ̄)(S − S̄)*/Σ|S − S̄|², which removes the diffuse field's noise
+    wherever Kirchhoff follows the wave solution), and |Eψ|² by |ψ̂|² − v/B with v the residual
+    variance (ddof 1, or 2 with the control): unbiased for any B (to O(1/B²) with the control),
+    where |ψ̄|² alone carries the diffuse power / B. Channels are averaged (unpolarised), the result
+    is kept inside the specular beam `window` (S, I) and integrated over θ_s; its standard error is
+    a delete-a-group jackknife (`JACKKNIFE_GROUPS` groups).
+
+    Returns:
+        (σ_coherent (S, I), R_coh (I,), SE of R_coh (I,)); with one profile |ψ|² and SE 0.
+    """
+    b = amps.shape[0]
+    amps = np.asarray(amps)
+    win = np.asarray(window, float)
+    norm = np.asarray(norm)
+    use_control = control is not None and expected is not None and b >= MIN_PROFILES_CONTROL
+    if use_control:
+        control = np.asarray(control)[:, None]  # (B, 1, S, I), shared by the channels
+        expected = np.asarray(expected)
+
+    def estimate(idx):
+        a = amps[idx]
+        m = a.shape[0]
+        bar = a.mean(0)
+        if m < 2:
+            power = np.abs(bar) ** 2
+        elif use_control:
+            s = control[idx]
+            ds = s - s.mean(0)
+            var_s = np.sum(np.abs(ds) ** 2, 0)
+            beta = np.where(var_s > 0, np.sum((a - bar) * np.conj(ds), 0) / np.where(var_s > 0, var_s, 1.0), 0.0)
+            est = bar - beta * (s.mean(0) - expected)
+            resid = a - beta * s
+            power = np.abs(est) ** 2 - np.sum(np.abs(resid - resid.mean(0)) ** 2, 0) / (m - 2) / m
+        else:
+            power = np.abs(bar) ** 2 - np.sum(np.abs(a - bar) ** 2, 0) / (m - 1) / m
+        sig = power.mean(0) / norm * win  # (S, I)
+        return sig, np.trapezoid(sig, theta_rad, axis=0)
+
+    sig, r = estimate(np.arange(b))
+    if b < 4:
+        return jnp.asarray(sig), jnp.asarray(r), jnp.zeros_like(jnp.asarray(r))
+    groups = np.array_split(np.arange(b), min(JACKKNIFE_GROUPS, b))
+    rg = np.stack([estimate(np.setdiff1d(np.arange(b), gi))[1] for gi in groups])
+    G = len(groups)
+    se = np.sqrt((G - 1) / G * np.sum((rg - rg.mean(0)) ** 2, 0))
+    return jnp.asarray(sig), jnp.asarray(r), jnp.asarray(se)
+
+
 def solve_profiles(
     profiles: Profiles,
     incidence_deg,
@@ -305,6 +430,7 @@ def solve_profiles(
     metal_index=None,
     taper_um: float | None = None,
     batch_size: int | None = None,
+    control_variate: bool = True,
 ) -> WaveLobes:
     """Scattering lobes of given profiles, averaged over the profiles (the jit boundary).
 
@@ -321,6 +447,8 @@ def solve_profiles(
         taper_um: Thorsos taper g (default L/4).
         batch_size: profiles per vmapped batch inside the single compiled loop over profiles
             (default 1: on CPU, vmapping the fill and LU over profiles measured 3–5× slower).
+        control_variate: use the Kirchhoff control variate for `sigma` when the profiles carry the
+            covariance of their process (synthesised profiles) and B ≥ 4 (see `control_variate_mean`).
 
     Returns:
         `WaveLobes`.
@@ -345,26 +473,35 @@ def solve_profiles(
         batch_size = 1  # sequential lax.map: on CPU, vmapping the fill/LU over profiles is slower
     kinds = tuple(c[0] for c in chans)
     etas = jnp.asarray([c[1] for c in chans], dtype=jnp.result_type(complex))
-    amps, absorbed = _solve_batch(
-        profiles.h, profiles.dh, profiles.d2h, profiles.x, jnp.radians(jnp.asarray(inc)), jnp.asarray(ang), etas,
+    inc_rad = np.radians(inc)
+    amps, absorbed, control = _solve_batch(
+        profiles.h, profiles.dh, profiles.d2h, profiles.x, jnp.asarray(inc_rad), jnp.asarray(ang), etas,
         k, dx, g, kinds=kinds, band=band_width(k, dx), batch_size=int(batch_size),
-    )  # (B, C, A, I), (B, C, I)
-    p_inc = incident_power(jnp.radians(jnp.asarray(inc)), k, g)  # (I,)
+    )  # (B, C, A, I), (B, C, I), (B, A, I)
+    p_inc = incident_power(jnp.asarray(inc_rad), k, g)  # (I,)
     norm = 8.0 * jnp.pi * k * p_inc
     ns = ths.shape[0]
     sig_all = jnp.abs(amps) ** 2 / norm  # (B, C, A, I)
     sig_user = jnp.mean(sig_all[:, :, :ns], axis=1)  # (B, S, I) mean over channels
-    coh = jnp.mean(jnp.abs(jnp.mean(amps[:, :, :ns], axis=0)) ** 2, axis=0) / norm  # (S, I)
-    refl = jnp.einsum("bcqi,q->bci", sig_all[:, :, ns:], jnp.asarray(wq * np.pi / 2.0))
+    refl = jnp.mean(jnp.einsum("bcqi,q->bci", sig_all[:, :, ns:], jnp.asarray(wq * np.pi / 2.0)), axis=1)  # (B, I)
     b = sig_user.shape[0]
-    sem = jnp.std(sig_user, axis=0, ddof=1) / math.sqrt(b) if b > 1 else jnp.zeros_like(sig_user[0])
+    expected = expected_mean = None
+    if control_variate and profiles.covariance is not None and b >= MIN_PROFILES_CONTROL:
+        expected = expected_control_power(profiles.covariance, profiles.x, dx, g, k, inc_rad, np.radians(ths))  # (S, I)
+        expected_mean = expected_control_amplitude(profiles.covariance, profiles.x, g, k, inc_rad, np.radians(ths))
+    sigma, sem = control_variate_mean(sig_user, jnp.abs(control[:, :ns]) ** 2, expected)
+    window = np.abs(np.sin(np.radians(ths))[:, None] - np.sin(inc_rad)[None, :]) < COHERENT_WINDOW / (k * g)  # (S, I)
+    coh, r_coh, r_coh_se = coherent_estimate(amps[:, :, :ns], norm, window, np.radians(ths), control[:, :ns], expected_mean)
     return WaveLobes(
         incidence_deg=jnp.asarray(inc),
         theta_s_deg=jnp.asarray(ths),
-        sigma=jnp.mean(sig_user, axis=0).T,
+        sigma=sigma.T,
         sigma_coherent=coh.T,
         sigma_sem=sem.T,
-        reflected=jnp.mean(refl, axis=(0, 1)),
+        reflected=jnp.mean(refl, axis=0),
+        reflected_se=jnp.std(refl, axis=0, ddof=1) / math.sqrt(b) if b > 1 else jnp.zeros(refl.shape[1:]),
+        coherent_reflectance=r_coh,
+        coherent_reflectance_se=r_coh_se,
         absorbed=jnp.mean(absorbed / p_inc, axis=(0, 1)),
         boundary=boundary,
         polarization=polarization,
@@ -400,7 +537,7 @@ def scattering_amplitudes(
         raise ValueError(f"taper_um must be > 0 (inf for a plane wave), got {taper_um!r}")
     inc = _check_angles("incidence_deg", incidence_deg, -89.0, 89.0)
     ths = _check_angles("theta_s_deg", theta_s_deg, -90.0, 90.0)
-    amps, _ = _solve_batch(
+    amps, _, _ = _solve_batch(
         profiles.h, profiles.dh, profiles.d2h, profiles.x, jnp.radians(jnp.asarray(inc)), jnp.radians(jnp.asarray(ths)),
         jnp.asarray([c[1] for c in chans], dtype=jnp.result_type(complex)), k, dx, g,
         kinds=tuple(c[0] for c in chans), band=band_width(k, dx), batch_size=1,
@@ -454,10 +591,22 @@ def surface_fields(profiles: Profiles, incidence_deg, *, wavelength_um: float = 
     ])
 
 
-def default_spacing(wavelength_um: float = 0.5, n_medium: float = 1.5, points_per_wavelength=None) -> float:
-    """Grid step λ0/(n·ppw) [µm] (ppw default 12)."""
-    ppw = DEFAULT_POINTS_PER_WAVELENGTH if points_per_wavelength is None else _check_scalar("points_per_wavelength", points_per_wavelength, 3.999, 200.0)
-    return wavelength_um / n_medium / ppw
+#: Grid steps per rms radius of curvature τ²/(√12 σ) of a Gaussian surface required by default (steep,
+#: strongly curved surfaces: at σ = 0.3, τ = 0.2 µm, 12 points per wavelength gave reflected + absorbed
+#: = 1.135, 2.8 steps per radius 0.999).
+POINTS_PER_CURVATURE_RADIUS = 3.0
+
+
+def default_spacing(wavelength_um: float = 0.5, n_medium: float = 1.5, points_per_wavelength=None, *, sigma_um=None, tau_um=None,
+                    correlation: str = "gaussian") -> float:
+    """Grid step [µm]: λ0/(n·ppw) with ppw given, else the finer of λ0/(12 n) and, for a Gaussian surface
+    with σ, τ given, its rms radius of curvature τ²/(√12 σ) / `POINTS_PER_CURVATURE_RADIUS`."""
+    if points_per_wavelength is not None:
+        return wavelength_um / n_medium / _check_scalar("points_per_wavelength", points_per_wavelength, 3.999, 200.0)
+    dx = wavelength_um / n_medium / DEFAULT_POINTS_PER_WAVELENGTH
+    if sigma_um is not None and tau_um is not None and correlation == "gaussian":
+        dx = min(dx, tau_um**2 / (math.sqrt(12.0) * sigma_um) / POINTS_PER_CURVATURE_RADIUS)
+    return dx
 
 
 def profile_averaged_lobes(
@@ -487,7 +636,7 @@ def profile_averaged_lobes(
         wavelength_um: vacuum wavelength; n_medium: binder index.
         boundary, polarization, metal_index: see `solve_profiles`.
         correlation: "gaussian" or "exponential".
-        points_per_wavelength: sampling in the medium (default 12).
+        points_per_wavelength: sampling in the medium (default: `default_spacing` of this surface).
 
     Returns:
         `WaveLobes`.
@@ -500,7 +649,7 @@ def profile_averaged_lobes(
         seed = int(seed)
     except (TypeError, ValueError):
         raise ValueError(f"seed must be an integer, got {seed!r}") from None
-    dx = default_spacing(wavelength_um, n_medium, points_per_wavelength)
+    dx = default_spacing(wavelength_um, n_medium, points_per_wavelength, sigma_um=float(sigma_um), tau_um=float(tau_um), correlation=correlation)
     profiles = synthesize_profiles(
         jax.random.PRNGKey(seed), sigma_um, tau_um, length_um=length_um, spacing_um=dx,
         num_profiles=num_profiles, correlation=correlation,
