@@ -1,0 +1,258 @@
+"""Platelet BRDF against physics at every roughness the inverse explores.
+
+The wave table is checked against closed forms and independent implementations: the exact
+expectation of the Kirchhoff control variate, the Kirchhoff coherent fall-off, He–Torrance across
+the whole lobe including specular, geometric optics (Beckmann slopes with Smith shadowing, written
+out here), the analytic 3-D Kirchhoff BRDF over the full hemisphere, energy against the flat
+surface and reciprocity over the box σ 0.01–0.30 µm, τ 0.2–2.0 µm in binder and air, and the
+(σ, τ) grid against a table built directly.
+"""
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.special import erf
+
+from paintjax import (BeckmannBRDF, HeTorranceBRDF, TabulatedBRDF, kirchhoff_lobes, platelet_brdf_grid, platelet_brdf_table,
+                      platelet_table_arrays, synthesize_profiles, table_from_lobes)
+from paintjax._aluminium import aluminium_index
+from paintjax._brdf_table import _fresnel_np
+from paintjax._wave import expected_control_amplitude, expected_control_power, profile_averaged_lobes
+
+HT = dict(sigma_um=0.28, tau_um=1.77, n_medium=1.0)  # the published full-wave validation case (λ0 = 0.5 µm)
+AL = complex(np.asarray(aluminium_index(0.5)))
+
+
+@functools.lru_cache(maxsize=None)
+def _jitted(name):
+    return eqx.filter_jit(lambda b, *a: getattr(b, name)(*a))
+
+
+def call(brdf, name, *args):
+    return _jitted(name)(brdf, *args)
+
+
+def direction(theta_deg, phi_deg=0.0):
+    t, p = np.deg2rad(theta_deg), np.deg2rad(phi_deg)
+    return np.stack(np.broadcast_arrays(np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)), -1)
+
+
+def hemisphere(n_theta=200, n_phi=400):
+    """(ω_o (Q, 3), weights of ∫ · cosθ_o dω_o), Gauss–Legendre in θ, uniform in φ."""
+    x, w = np.polynomial.legendre.leggauss(n_theta)
+    th = 0.25 * np.pi * (x + 1.0)
+    ph = (np.arange(n_phi) + 0.5) * 2.0 * np.pi / n_phi
+    wo = np.stack(np.broadcast_arrays(np.sin(th)[:, None] * np.cos(ph), np.sin(th)[:, None] * np.sin(ph), np.cos(th)[:, None]), -1)
+    wt = (0.25 * np.pi * w * np.cos(th) * np.sin(th))[:, None] * (2.0 * np.pi / n_phi) * np.ones_like(ph)
+    return jnp.asarray(wo.reshape(-1, 3)), wt.ravel()
+
+
+@functools.lru_cache(maxsize=None)
+def ht_table():
+    arrays, _ = platelet_table_arrays(HT["sigma_um"], HT["tau_um"], n_medium=HT["n_medium"])
+    return arrays, TabulatedBRDF.from_arrays(arrays, n_medium=HT["n_medium"])
+
+
+def test_control_variate_expectation_is_exact():
+    """E|S|² and E S of the Kirchhoff control sum, computed in closed form for the synthesised process,
+    match a Monte Carlo over 4000 profiles (S needs no wave solve) within 4 standard errors."""
+    k, g = 2 * np.pi * 1.5 / 0.5, 2.0
+    p = synthesize_profiles(jax.random.PRNGKey(11), 0.051, 0.64, length_um=8.0, spacing_um=0.04, num_profiles=4000)
+    x, h = np.asarray(p.x), np.asarray(p.h)
+    inc, ang = np.radians([0.0, 40.0]), np.radians(np.array([-50.0, -10.0, 0.0, 3.0, 25.0, 40.0, 70.0]))
+    qx = k * (np.sin(ang)[:, None] - np.sin(inc)[None, :])
+    qz = k * (np.cos(ang)[:, None] + np.cos(inc)[None, :])
+    w = np.exp(-(x**2) / g**2)
+    S = np.einsum("n,ain,bain->bai", w, np.exp(-1j * qx[..., None] * x), np.exp(-1j * qz[None, ..., None] * h[:, None, None, :]))
+    power, mean = np.abs(S) ** 2, S
+    want_p = expected_control_power(p.covariance, x, p.spacing, g, k, inc, ang)
+    want_m = expected_control_amplitude(p.covariance, x, g, k, inc, ang)
+    z_p = (power.mean(0) - want_p) / (power.std(0) / np.sqrt(power.shape[0]))
+    z_m = np.abs(mean.mean(0) - want_m) / (np.abs(mean - mean.mean(0)).std(0) * np.sqrt(2) / np.sqrt(mean.shape[0]) + 1e-300)
+    assert np.max(np.abs(z_p)) < 4.0, z_p
+    assert np.max(z_m) < 4.0, z_m
+
+
+def test_coherent_reflectance_follows_kirchhoff_fall_off():
+    """σ = 20 nm, τ = 640 nm in the binder (2kσ = 0.75, Kirchhoff valid): the unbiased coherent
+    reflectance follows R_F(θ) e^{−(2kσ cosθ)²} at 0–60° within 3 SE + 1 % (Kirchhoff's own error;
+    measured ≤ 0.3 %), rising with the incidence as the fall-off weakens."""
+    inc = np.array([0.0, 20.0, 40.0, 60.0])
+    r = profile_averaged_lobes(0.02, 0.64, num_profiles=16, seed=2, incidence_deg=inc, theta_s_deg=np.linspace(-89.5, 89.5, 359))
+    k = 2 * np.pi * 1.5 / 0.5
+    mu = np.cos(np.deg2rad(inc))
+    want = _fresnel_np(mu, 1.5, AL) * np.exp(-((2 * k * 0.02 * mu) ** 2))
+    got, se = np.asarray(r.coherent_reflectance), np.asarray(r.coherent_reflectance_se)
+    assert np.all(np.abs(got - want) <= 3 * se + 0.01 * want), (got, want, se)
+    assert np.all(np.diff(got) > 0)
+
+
+def test_rough_surface_has_no_coherent_spike():
+    """The He–Torrance surface (2kσ = 7, exact coherent part ~1e-21): the wave estimate is consistent with
+    0 within 3 SE at every solved incidence up to 60°, the table stores ≤ 3 SE at normal incidence (it
+    stored 0.0039 when the mean field carried the diffuse power / N), and the in-plane cut has no spike:
+    within ±3° of specular it stays within 10 % of the lobe just outside."""
+    arrays, table = ht_table()
+    inc = np.asarray(arrays["incidence_deg"])
+    rc, se = np.asarray(arrays["coherent_reflectance"]), np.asarray(arrays["coherent_reflectance_se"])
+    solved = np.asarray(arrays["wave_solved"], bool) & (inc <= 60.0)
+    assert np.all(rc[solved] <= 3 * se[solved] + 1e-12), (rc[solved], se[solved])
+    assert rc[0] <= 3 * se[0] + 1e-12 and se[0] < 1e-4
+    to = np.linspace(-20.0, 20.0, 401)
+    cut = np.asarray(table.in_plane(0.0, to))[0]
+    near, ring = cut[np.abs(to) <= 3.0], cut[(np.abs(to) > 3.0) & (np.abs(to) <= 4.0)]
+    assert near.max() <= 1.10 * ring.max(), (near.max(), ring.max())
+
+
+def test_he_torrance_whole_lobe_including_specular():
+    """10° incidence in air, the published validation case: the wave table's full BRDF (coherent lobe
+    included) against He–Torrance's over the core (He–Torrance ≥ half its peak): rms relative error
+    ≤ 10 % and peak ratio 0.9–1.1 (measured 0.8 % and 0.99; were 27 % and 1.85)."""
+    _, table = ht_table()
+    ht = HeTorranceBRDF(HT["sigma_um"], HT["tau_um"], wavelength_um=0.5, n_medium=HT["n_medium"])
+    to = np.linspace(-89.0, 89.0, 357)
+    wi, wo = jnp.asarray(direction(10.0)), jnp.asarray(direction(-to))
+    f, ref = np.asarray(call(table, "evaluate", wi, wo)), np.asarray(call(ht, "evaluate", wi, wo))
+    core = ref >= 0.5 * ref.max()
+    rel = f[core] / ref[core] - 1.0
+    assert np.sqrt(np.mean(rel**2)) <= 0.10
+    assert 0.9 <= f.max() / ref.max() <= 1.1
+
+
+def _geometric_optics(theta_i, theta_o, sigma, tau, n, metal):
+    """Beckmann microfacet BRDF (slopes of C = σ² e^{−x²/τ²}: m = 2σ/τ) with Smith shadowing, in plane."""
+    wi, wo = direction(theta_i), direction(-np.asarray(theta_o))
+    h = wi + wo
+    h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+    m = 2.0 * sigma / tau
+    ch = h[..., 2]
+    D = np.exp(-(1.0 - ch**2) / (ch**2 * m**2)) / (np.pi * m**2 * ch**4)
+
+    def g1(mu):
+        a = mu / (m * np.sqrt(np.maximum(1.0 - mu**2, 1e-300)))
+        return 1.0 / (1.0 + (erf(a) - 1.0) / 2.0 + np.exp(-(a**2)) / (2.0 * a * np.sqrt(np.pi)))
+
+    F = _fresnel_np(np.sum(wi * h, -1), n, metal)
+    return F * D * g1(wi[2]) * g1(wo[..., 2]) / (4.0 * wi[2] * wo[..., 2])
+
+
+def _fwhm(theta, f):
+    i = int(np.argmax(f))
+    above = np.nonzero(f >= 0.5 * f[i])[0]
+    lo, hi = above[0], above[-1]
+    assert 0 < lo and hi < theta.size - 1, "lobe reaches the end of the cut"
+    left = theta[lo - 1] + (0.5 * f[i] - f[lo - 1]) * (theta[lo] - theta[lo - 1]) / (f[lo] - f[lo - 1])
+    right = theta[hi] + (0.5 * f[i] - f[hi]) * (theta[hi + 1] - theta[hi]) / (f[hi + 1] - f[hi])
+    return right - left
+
+
+@pytest.mark.parametrize("theta_i", [0.0, 10.0, 20.0, 40.0])
+def test_in_plane_width_matches_geometric_optics(theta_i):
+    """He–Torrance surface (kσ = 3.5: geometric optics): the full width at half maximum of the in-plane
+    scattered intensity f cosθ_o is within 10 % of geometric optics (measured −2…−3 %). (f alone peaks
+    at grazing beyond ~10° incidence in both, so its width is not defined there.)"""
+    _, table = ht_table()
+    to = np.linspace(-89.9, 89.9, 3597)
+    f = np.asarray(call(table, "evaluate", jnp.asarray(direction(theta_i)), jnp.asarray(direction(-to)))) * np.cos(np.deg2rad(to))
+    ref = _geometric_optics(theta_i, to, HT["sigma_um"], HT["tau_um"], HT["n_medium"], AL) * np.cos(np.deg2rad(to))
+    assert abs(_fwhm(to, f) / _fwhm(to, ref) - 1.0) <= 0.10, (_fwhm(to, f), _fwhm(to, ref))
+
+
+@functools.lru_cache(maxsize=None)
+def kirchhoff_pair():
+    sigma, tau = 0.051, 0.64
+    return table_from_lobes(kirchhoff_lobes(sigma, tau), min_width=2.0 * 0.5 / (2 * np.pi * 1.5 * tau)), BeckmannBRDF(sigma, tau)
+
+
+@pytest.mark.parametrize("theta_i", [0.0, 10.0, 20.0, 40.0, 60.0, 80.0])
+def test_3d_construction_over_the_full_hemisphere(theta_i):
+    """The 2-D → 3-D step (inverse Abel, q_z continuation, symmetric scale) applied to 1-D Kirchhoff
+    lobes reproduces the analytic isotropic 3-D Kirchhoff BRDF over the whole exit hemisphere, not
+    only in the plane: the scattered-power-weighted L1 difference ∫|f − f_K| cos dω / ∫ f_K cos dω ≤ 5 %
+    at 0–60° and ≤ 10 % at 80°, where the lobe lies mostly beyond the horizon."""
+    table, analytic = kirchhoff_pair()
+    wo, wt = hemisphere()
+    wi = jnp.asarray(direction(theta_i))
+    f, ref = np.asarray(call(table, "incoherent", wi, wo)), np.asarray(call(analytic, "incoherent", wi, wo))
+    l1 = np.sum(np.abs(f - ref) * wt) / np.sum(ref * wt)
+    assert l1 <= (0.10 if theta_i > 60 else 0.05), l1
+
+
+BOX = [(0.01, 0.2), (0.01, 2.0), (0.3, 0.2), (0.3, 2.0), (0.051, 0.64)]
+
+
+@functools.lru_cache(maxsize=None)
+def box_table(sigma, tau, n):
+    arrays, _ = platelet_table_arrays(sigma, tau, n_medium=n, num_profiles=8)
+    return arrays, TabulatedBRDF.from_arrays(arrays, coherent="delta", n_medium=n)
+
+
+@pytest.mark.parametrize("n", [1.5, 1.0])
+@pytest.mark.parametrize("sigma,tau", BOX)
+def test_energy_and_reciprocity_over_the_box(sigma, tau, n):
+    """At the corners of σ 0.01–0.30 µm × τ 0.2–2.0 µm and at the measured roughness, in binder and
+    air: the directional albedo (coherent part + independent hemisphere quadrature of the diffuse
+    lobe) never exceeds the reflectance of the flat surface under the same impedance (Leontovich)
+    boundary, r = (cosθ − η)/(cosθ + η), by more than 3 stated SE + 2e-3 (the solver's flat-surface
+    discretisation error at its beam limit) at 0–85°, agrees with the table's stated albedo within
+    1 % at the tabulated incidences, and the BRDF is reciprocal."""
+    arrays, table = box_table(sigma, tau, n)
+    wo, wt = hemisphere(240, 480)
+    nodes = np.asarray(arrays["incidence_deg"])
+    inc = np.concatenate([nodes[nodes <= 85.0], [85.0]])
+    mu = np.cos(np.deg2rad(inc))
+    se = np.interp(mu, np.cos(np.deg2rad(arrays["incidence_deg"]))[::-1], np.asarray(arrays["reflectance_se"])[::-1])
+    root = np.sqrt((AL / n) ** 2)
+    flat = 0.5 * (np.abs((mu - root) / (mu + root)) ** 2 + np.abs((mu - 1 / root) / (mu + 1 / root)) ** 2)
+    for j, ti in enumerate(inc):
+        wi = jnp.asarray(direction(ti))
+        diffuse = float(np.sum(np.asarray(call(table, "incoherent", wi, wo)) * wt))
+        albedo = diffuse + float(call(table, "coherent_reflectance", jnp.asarray(mu[j])))
+        stated = float(call(table, "albedo", jnp.asarray(mu[j])))
+        assert albedo <= flat[j] + 3 * se[j] + 2e-3, (ti, albedo, flat[j], se[j])
+        if ti in nodes:
+            assert abs(albedo - stated) <= 0.01 * stated, (ti, albedo, stated)
+    rng = np.random.default_rng(0)
+    a = direction(rng.uniform(0, 85, 200), rng.uniform(0, 360, 200))
+    b = direction(rng.uniform(0, 85, 200), rng.uniform(0, 360, 200))
+    fab, fba = np.asarray(call(table, "evaluate", jnp.asarray(a), jnp.asarray(b))), np.asarray(call(table, "evaluate", jnp.asarray(b), jnp.asarray(a)))
+    np.testing.assert_allclose(fab, fba, rtol=1e-9, atol=1e-300)
+
+
+@functools.lru_cache(maxsize=None)
+def grid_and_direct():
+    kw = dict(num_profiles=8)
+    grid = platelet_brdf_grid([0.05, 0.1, 0.2], [0.3, 0.6, 1.2], coherent="delta", **kw)
+    return grid.at(0.14, 0.39), platelet_brdf_table(0.14, 0.39, coherent="delta", **kw)
+
+
+def test_grid_interpolation_conserves_energy():
+    """The grid [0.05, 0.1, 0.2] × [0.3, 0.6, 1.2] µm at σ = 0.14, τ = 0.39 µm, between every node: the
+    albedo (independent quadrature) equals the interpolated reflectance within 1 % (a direct table's own
+    consistency between tabulated incidences, `test_table_reflectance_equals_source`) and a table built
+    directly there within 3 % at 0–80° (it was 0.944 against 0.845 when the scale was interpolated
+    separately from the lobe)."""
+    between, direct = grid_and_direct()
+    wo, wt = hemisphere()
+    for ti in (0.0, 20.0, 40.0, 60.0, 80.0):
+        wi, mu = jnp.asarray(direction(ti)), jnp.cos(jnp.deg2rad(ti))
+        albedo = float(np.sum(np.asarray(call(between, "incoherent", wi, wo)) * wt)) + float(call(between, "coherent_reflectance", mu))
+        assert abs(albedo / float(call(between, "albedo", mu)) - 1.0) <= 0.01, ti
+        assert abs(albedo / float(call(direct, "albedo", mu)) - 1.0) <= 0.03, ti
+
+
+@pytest.mark.xfail(strict=True, reason="lobe shapes mix, not shift, across a factor-2 grid: L1 0.30 at 0° (open)")
+def test_grid_interpolated_lobe_within_3_percent_of_a_direct_table():
+    """The interpolated BRDF itself within 3 % of the direct table's in scattered-power weighted L1 at
+    0° and 40°. Fails: coefficients on fixed basis widths interpolate two lobes of different widths
+    into their mixture, not into a lobe of intermediate width (measured L1 0.30 at 0°)."""
+    between, direct = grid_and_direct()
+    wo, wt = hemisphere()
+    for ti in (0.0, 40.0):
+        wi = jnp.asarray(direction(ti))
+        fg, fd = np.asarray(call(between, "incoherent", wi, wo)), np.asarray(call(direct, "incoherent", wi, wo))
+        assert np.sum(np.abs(fg - fd) * wt) / np.sum(fd * wt) <= 0.03, ti
