@@ -46,11 +46,13 @@ Prior box (`TRACER_BOX`, log-uniform in each): shape 1.2–8, scale 0.7–4°, �
 ≈ 0.8° (almost perfectly aligned) to ≈ 30° (poorly aligned), platelet roughness from nearly
 specular (2kσ ≈ 0.75 at σ = 20 nm, over half the light coherent) to strongly diffusing
 (σ = 90 nm, coherent share < 10⁻³ at normal incidence), slopes 2σ/τ from 0.02 to 0.4. Rougher
-platelets are left out because the platelet tables of this `_brdf_table` version are not energy
-conserving there (table version 7: L* > 300 at σ = 0.14, τ = 0.39 µm, and 3× the incident flux
-created at σ = 0.113, τ = 0.70 µm, seen through this module's grid; a table built directly at that
-point conserves energy in `simulate`, its platelets absorbing 0.39 of the flux, 2026-12-02; `trace`
-refuses evaluations that create energy, `_tracer.MAX_CREATED_ENERGY`). Its
+platelets were left out because the platelet tables of `_brdf_table` version 7 created energy
+between grid nodes (L* > 300 at σ = 0.14, τ = 0.39 µm: the symmetric scale and the lobe were
+interpolated separately). Since version 9 the grid re-solves the scale at the interpolated point, so
+the albedo is the interpolated reflectance (within 1 % by quadrature, within 3 % of a table built
+directly), and tables over σ 0.01–0.30 µm, τ 0.2–2.0 µm conserve energy (tests/test_platelet_brdf_truth.py);
+widening this box is the inverse layer's decision (its emulator design would need rebuilding). `trace`
+still refuses evaluations that create energy (`_tracer.MAX_CREATED_ENERGY`). Its
 log-centres (3.1, 1.67°, 0.042 µm, 0.90 µm) are not the measured values (2.29–2.98, 2.1–2.18°,
 0.051 µm, 0.64 µm), which sit at 25–62 % of each log-range. The box is narrower than the
 registered parameter bounds so that a design of 120 tracer runs can cover it.

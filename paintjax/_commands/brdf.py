@@ -23,7 +23,7 @@ def register(sub) -> None:
     p.add_argument("--tau", type=float, default=0.64, help="correlation length τ in µm (default 0.64)")
     p.add_argument("--wavelength", type=float, default=0.5, help="vacuum wavelength in µm (default 0.5)")
     p.add_argument("--n", type=float, default=1.5, help="binder index (default 1.5)")
-    p.add_argument("--profiles", type=int, default=10, help="number of profiles averaged (default 10)")
+    p.add_argument("--profiles", type=int, default=None, help="number of profiles averaged (default 40, the tables' default)")
     p.add_argument("--length", type=float, default=20.0, help="profile length in µm (default 20)")
     p.add_argument("--seed", type=int, default=0, help="profile seed (default 0)")
     p.add_argument("--source", choices=("wave", "kirchhoff"), default="wave", help="lobe source (default wave)")
@@ -35,13 +35,14 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def compute(sigma=0.051, tau=0.64, wavelength=0.5, n=1.5, profiles=10, length=20.0, seed=0, source="wave", method="abel", cache_dir=None, cache=True) -> dict:
+def compute(sigma=0.051, tau=0.64, wavelength=0.5, n=1.5, profiles=None, length=20.0, seed=0, source="wave", method="abel", cache_dir=None, cache=True) -> dict:
     """Table, in-plane cuts and reflectances as a plain dict (the CLI's JSON plus extras)."""
     import jax.numpy as jnp
 
-    from .._brdf_table import TabulatedBRDF, platelet_table_arrays
+    from .._brdf_table import DEFAULT_NUM_PROFILES, TabulatedBRDF, platelet_table_arrays
     from .._beckmann import coherent_lobe_width
 
+    profiles = DEFAULT_NUM_PROFILES if profiles is None else profiles
     if not (isinstance(profiles, int) and profiles >= 1):
         raise ValueError(f"profiles must be an integer ≥ 1, got {profiles!r}")
     t0 = time.perf_counter()
@@ -101,15 +102,18 @@ def run(args) -> int:
     out = Path(args.out)  # the files are written with --json too, as by simulate and table1
     png = plot(r, out / "brdf.png", f"platelet BRDF σ = {args.sigma:g} µm, τ = {args.tau:g} µm ({args.source}, {args.method})")
     data = {k: r[k] for k in ("incidence_deg", "theta_o_deg", "brdf", "reflectance")}
+    a = r["arrays"]
+    data["table"] = {k: np.asarray(a[k]) for k in ("incidence_deg", "reflectance", "reflectance_se", "coherent_reflectance",
+                                                   "coherent_reflectance_se", "lobe_relative_se", "absorbed")}
     atomic_write_json(out / "brdf.json", data)
     if args.json:
         print_json(data)
         return 0
     print(f"platelet BRDF table σ = {args.sigma:g} µm, τ = {args.tau:g} µm, λ0 = {args.wavelength:g} µm, n = {args.n:g} "
           f"({args.source}, {args.method}; {'loaded from cache' if r['cache_hit'] else 'built'} in {r['seconds']:.1f} s)")
-    a = r["arrays"]
-    print(f"{'θ_i':>6} {'reflected':>10} {'coherent':>9} {'absorbed':>9} {'outside':>8}")
-    for row in zip(a["incidence_deg"], a["reflectance"], a["coherent_reflectance"], a["absorbed"], a["outside_fraction"]):
-        print(f"{row[0]:>5.0f}° {row[1]:>10.4f} {row[2]:>9.4f} {row[3]:>9.4f} {row[4]:>8.4f}")
+    print(f"{'θ_i':>6} {'reflected ± SE':>17} {'coherent ± SE':>19} {'absorbed':>9} {'outside':>8} {'lobe SE':>8}")
+    for row in zip(a["incidence_deg"], a["reflectance"], a["reflectance_se"], a["coherent_reflectance"], a["coherent_reflectance_se"],
+                   a["absorbed"], a["outside_fraction"], a["lobe_relative_se"]):
+        print(f"{row[0]:>5.0f}° {row[1]:>8.4f} ± {row[2]:.4f} {row[3]:>9.2e} ± {row[4]:.1e} {row[5]:>9.4f} {row[6]:>8.4f} {row[7]:>7.2%}")
     print(f"plot: {png}")
     return 0
