@@ -237,23 +237,59 @@ def test_grid_interpolation_conserves_energy():
     directly there within 3 % at 0–80° (it was 0.944 against 0.845 when the scale was interpolated
     separately from the lobe)."""
     between, direct = grid_and_direct()
+    built = platelet_brdf_grid([0.05, 0.1, 0.2], [0.3, 0.6, 1.2], coherent="delta", num_profiles=8).build_at(0.14, 0.39)
     wo, wt = hemisphere()
     for ti in (0.0, 20.0, 40.0, 60.0, 80.0):
         wi, mu = jnp.asarray(direction(ti)), jnp.cos(jnp.deg2rad(ti))
         albedo = float(np.sum(np.asarray(call(between, "incoherent", wi, wo)) * wt)) + float(call(between, "coherent_reflectance", mu))
         assert abs(albedo / float(call(between, "albedo", mu)) - 1.0) <= 0.01, ti
         assert abs(albedo / float(call(direct, "albedo", mu)) - 1.0) <= 0.03, ti
+        assert abs(float(call(built, "albedo", mu)) / float(call(direct, "albedo", mu)) - 1.0) <= 0.03, ti
 
 
-@pytest.mark.xfail(strict=True, reason="interpolated lobe shape 8–16 % (L1) from a direct table on a factor-2 grid (open)")
-def test_grid_interpolated_lobe_within_3_percent_of_a_direct_table():
-    """The interpolated BRDF itself within 3 % of the direct table's in scattered-power weighted L1 at
-    0° and 40°. Fails: interpolating lobe coefficients on fixed basis widths mixes neighbouring lobes;
-    scaling them to the interpolated width first (`shift_lobes`) cut the L1 difference here from 0.30
-    to 0.08–0.16, and to 2–8 % on grids of ratio 1.41 (Kirchhoff-source tables), not to 3 %."""
-    between, direct = grid_and_direct()
+def _l1(a, b, theta_i, wo, wt):
+    wi = jnp.asarray(direction(theta_i))
+    fa, fb = np.asarray(call(a, "incoherent", wi, wo)), np.asarray(call(b, "incoherent", wi, wo))
+    return np.sum(np.abs(fa - fb) * wt) / np.sum(fb * wt)
+
+
+FINE = 1.41  # node ratio of the grids below (the tracer forward map's default grid: 1.35 in σ, 1.41 in τ)
+
+
+@functools.lru_cache(maxsize=None)
+def fine_grid(sigma, tau, source):
+    kw = dict(source=source) if source == "kirchhoff" else dict(num_profiles=16)
+    grid = platelet_brdf_grid([sigma / FINE, sigma, sigma * FINE], [tau / FINE, tau, tau * FINE], coherent="delta", **kw)
+    return grid, kw
+
+
+@pytest.mark.parametrize("sigma,tau,source", [(0.051, 0.64, "wave"), (0.14, 0.39, "kirchhoff")])
+def test_grid_built_table_within_3_percent_of_a_direct_table(sigma, tau, source):
+    """A table built from the grid's in-plane lobes interpolated at a mid-cell point (`build_at`) is within
+    3 % of a table built there directly (scattered-power weighted L1) at 0°, 40° and 70°: the measured
+    roughness with wave tables, and a steep surface (σ 0.14, τ 0.39 µm) with Kirchhoff-source tables
+    (measured ≤ 2.4 %); at a node it is the node's table; its albedo is the stated one."""
+    grid, kw = fine_grid(sigma, tau, source)
     wo, wt = hemisphere()
-    for ti in (0.0, 40.0):
-        wi = jnp.asarray(direction(ti))
-        fg, fd = np.asarray(call(between, "incoherent", wi, wo)), np.asarray(call(direct, "incoherent", wi, wo))
-        assert np.sum(np.abs(fg - fd) * wt) / np.sum(fd * wt) <= 0.03, ti
+    for q in ((sigma / np.sqrt(FINE), tau / np.sqrt(FINE)), (sigma * np.sqrt(FINE), tau / np.sqrt(FINE))):
+        built, direct = grid.build_at(*q), platelet_brdf_table(*q, coherent="delta", **kw)
+        for ti in (0.0, 40.0, 70.0):
+            assert _l1(built, direct, ti, wo, wt) <= 0.03, (q, ti, _l1(built, direct, ti, wo, wt))
+    node = platelet_brdf_table(sigma, tau, coherent="delta", **kw)
+    assert _l1(grid.build_at(sigma, tau), node, 0.0, wo, wt) < 1e-6
+    with pytest.raises(ValueError, match="tau_um"):
+        grid.build_at(sigma, 3.0 * tau)
+
+
+@pytest.mark.xfail(strict=True, reason="the jittable coefficient interpolation `at` is 2–10 % (L1) from a direct table between nodes (open)")
+@pytest.mark.parametrize("sigma,tau,source", [(0.051, 0.64, "wave"), (0.14, 0.39, "kirchhoff")])
+def test_grid_at_within_3_percent_of_a_direct_table(sigma, tau, source):
+    """The differentiable path `at` (lobe coefficients scaled to the interpolated width, then
+    interpolated) within 3 % of a direct table at the same mid-cell points. Fails: measured 2–10 %
+    (it was 16–28 % at ratio 2 before the width scaling); `build_at` is the accurate host-side path."""
+    grid, kw = fine_grid(sigma, tau, source)
+    wo, wt = hemisphere()
+    for q in ((sigma / np.sqrt(FINE), tau / np.sqrt(FINE)), (sigma * np.sqrt(FINE), tau / np.sqrt(FINE))):
+        between, direct = grid.at(*q), platelet_brdf_table(*q, coherent="delta", **kw)
+        for ti in (0.0, 40.0, 70.0):
+            assert _l1(between, direct, ti, wo, wt) <= 0.03, (q, ti)
