@@ -29,6 +29,15 @@ Output: the normalised bistatic coefficient (Thorsos)
 σ(θ_s) = |ψ_s^N|² / {8πk g √(π/2) cosθ_i [1 − (1 + 2tan²θ_i)/(2k²g²cos²θ_i)]}, ∫σ dθ_s = reflected
 fraction, the coherent part |⟨ψ_s^N⟩|² normalised the same way, and the absorbed fraction
 Re(η) ∫|ψ|² ds / P_inc, so that reflected + absorbed = 1 up to discretisation error.
+
+Ensemble estimates from B profiles: a plain mean of |ψ_s^N|² carries speckle (relative SE ≈ 1/√B per
+speckle cell) and |ψ̄|² carries the diffuse power / B. For synthesised profiles, whose process
+covariance is known (`Profiles.covariance`), each profile also yields the Kirchhoff sum
+S = Σ e^{−x²/g²} e^{−i(q_x x + q_z h)} (one matrix product), whose speckle follows the wave field's
+wherever Kirchhoff holds and whose ensemble moments are exact closed forms
+(`expected_control_power`, `expected_control_amplitude`): σ is the control-variate estimate
+(`control_variate_mean`; 1.5e-4 relative SE for the platelet roughness with 40 profiles, against 0.15
+for the plain mean) and the coherent part the unbiased `coherent_estimate` with a jackknife SE.
 """
 
 from __future__ import annotations
