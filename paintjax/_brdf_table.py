@@ -879,36 +879,6 @@ GRID_SINKHORN_ITERATIONS = 60
 _GRID_FIELDS = ("coef", "proposal_coef", "scale", "coherent_reflectance_table", "incoherent_reflectance_table", "absorbed", "outside_fraction")
 
 
-_LOBE_FIELDS = ("coef", "proposal_coef")
-
-
-def _log_width_step(widths):
-    """ln of the ratio between neighbouring (geometric) basis widths."""
-    return (jnp.log(widths[-1]) - jnp.log(widths[0])) / (widths.shape[0] - 1)
-
-
-def lobe_log_width(coef, widths):
-    """Mass-weighted mean ln width of a radial lobe Σ_k C_k e^{−ρ²/w_k²} (…, K) → (…) (the basis term of
-    width w has mass πw²; the geometric mean, unlike the rms radius, is not ruled by a faint broad tail).
-    A lobe without mass gets the basis's middle width."""
-    mass = jnp.maximum(coef, 0.0) * widths**2  # ghost nodes (linear extrapolation) may dip below 0
-    total = jnp.sum(mass, -1)
-    mid = 0.5 * (jnp.log(widths[0]) + jnp.log(widths[-1]))
-    return jnp.where(total > 0, jnp.sum(mass * jnp.log(widths), -1) / jnp.where(total > 0, total, 1.0), mid)
-
-
-def shift_lobes(coef, widths, shift):
-    """Lobes (…, K) scaled in ρ by widths-ratio^shift (shift (…) in basis steps), each term's mass kept:
-    the mass of width w_k moves to the fractional index k + shift, split linearly between its two
-    neighbouring basis widths (clipped at the ends of the basis)."""
-    K = widths.shape[0]
-    p = jnp.clip(jnp.arange(K) + shift[..., None], 0.0, K - 1.0)
-    i0 = jnp.minimum(jnp.floor(p).astype(jnp.int32), K - 2)
-    f = p - i0
-    move = jax.nn.one_hot(i0, K, dtype=coef.dtype) * (1.0 - f)[..., None] + jax.nn.one_hot(i0 + 1, K, dtype=coef.dtype) * f[..., None]
-    return jnp.einsum("...k,...kl->...l", coef * widths**2, move) / widths**2
-
-
 def _stencil(x, n: int):
     """(start index into the ghost-padded axis, local coordinate t) for fractional grid position x."""
     i = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, n - 2)
@@ -967,7 +937,7 @@ class BRDFTableGrid(eqx.Module):
         values, ≈ 0.5 s): the diffuse lobes in log, the coherent part, reflected and absorbed fractions and
         their errors by monotone cubics in log σ then log τ, then the table construction of a direct
         table. On grids of ratio ≤ 1.41 it stays within 2.4 % (scattered-power L1) of a table built
-        there at 0–70°, where `at` (coefficients interpolated, jittable and differentiable) is 2–10 %
+        there at 0–70°, where `at` (coefficients interpolated, jittable and differentiable) is 4–12 %
         off; at ratio 2 it is 5–15 % off (tests/test_platelet_brdf_truth.py, docs/platelet_brdf.md).
         It is not smooth in (σ, τ): each point's lobe fit (non-negative least squares) is its own, so
         1 % steps move the tracer's L* by ~0.05 at random; finite-difference fits and the common-random-
@@ -1011,15 +981,13 @@ class BRDFTableGrid(eqx.Module):
 
     def at(self, sigma_um, tau_um) -> TabulatedBRDF:
         """Table at (σ, τ) [µm]: monotone cubic (PCHIP) interpolation in log σ, then log τ, of every
-        tabulated array — C¹, interpolating at the nodes, non-negative, differentiable in (σ, τ). The
-        lobes (`coef`, `proposal_coef`) are first scaled, shape and mass kept, to the width interpolated
-        across the grid (`lobe_log_width`, `shift_lobes`): interpolating coefficients on fixed basis
-        widths mixes two lobes of different widths instead of giving one of intermediate width (L1 error
-        0.30 between the nodes of a factor-2 grid). Then the symmetric scale a(μ) is re-solved for the
-        interpolated lobe (`symmetric_scale`, from
+        tabulated array — C¹, interpolating at the nodes, non-negative, differentiable in (σ, τ) —
+        then the symmetric scale a(μ) re-solved for the interpolated lobe (`symmetric_scale`, from
         the interpolated a), so that the albedo at every tabulated incidence is the interpolated
         reflectance: interpolating a and the lobe separately does not conserve their product's
-        integral (it created up to 12 % of the albedo between nodes).
+        integral (it created up to 12 % of the albedo between nodes). The lobe shape between nodes is
+        a mixture of the neighbours' (coefficients on fixed basis widths): 4–12 % (L1) from a direct
+        table on grids of ratio 1.41, 16–36 % at ratio 2; `build_at` is the accurate host-side path.
         Outside the grid a ValueError names the parameter (traced values: the end cubic extrapolates)."""
         starts, ts = [], []
         for axis, (axis_nodes, value, name) in enumerate(((self.sigma_um, sigma_um, "sigma_um"), (self.tau_um, tau_um, "tau_um"))):
@@ -1039,12 +1007,7 @@ class BRDFTableGrid(eqx.Module):
         def interpolate(p44):
             return _pchip(_pchip(p44, ts[0]), ts[1])
 
-        out = {name: interpolate(stencil(self.stacked[name])) for name in _GRID_FIELDS if name not in _LOBE_FIELDS}
-        for name in _LOBE_FIELDS:  # lobes: scaled to the interpolated width first, then interpolated
-            c44 = stencil(self.stacked[name])
-            log_w44 = lobe_log_width(c44, self.widths)
-            shift = (interpolate(log_w44) - log_w44) / _log_width_step(self.widths)
-            out[name] = jnp.maximum(interpolate(shift_lobes(c44, self.widths, shift)), 0.0)
+        out = {name: interpolate(stencil(self.stacked[name])) for name in _GRID_FIELDS}
         kmat = jnp.einsum("jlmk,mk->jl", self.normalisation, out["coef"])
         scale = symmetric_scale(kmat, out["incoherent_reflectance_table"], out["scale"], GRID_SINKHORN_ITERATIONS)
         return TabulatedBRDF(

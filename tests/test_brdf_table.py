@@ -214,17 +214,3 @@ def test_negative_coherent_estimate_gets_its_positive_part():
     assert np.all(out.sigma_coherent[0] == 0.0)
     np.testing.assert_array_equal(out.sigma_coherent[1], sig_coh[1])
     np.testing.assert_array_equal(out.sigma, sigma)
-
-def test_shift_lobes_moves_mass_along_the_basis():
-    """An integer shift moves each term's mass by that many basis widths (mass kept, clipped at the ends);
-    a zero shift is the identity; the mass-weighted log width moves by shift × the basis step."""
-    from paintjax._brdf_table import _lobe_widths, _log_width_step, lobe_log_width, shift_lobes
-
-    w = jnp.asarray(_lobe_widths())
-    c = jnp.zeros(w.shape[0]).at[10].set(2.0).at[14].set(1.0)
-    np.testing.assert_allclose(np.asarray(shift_lobes(c, w, jnp.asarray(0.0))), np.asarray(c), rtol=1e-12, atol=1e-15)
-    moved = np.asarray(shift_lobes(c, w, jnp.asarray(3.0))) * np.asarray(w) ** 2
-    np.testing.assert_allclose(moved[[13, 17]], (np.asarray(c) * np.asarray(w) ** 2)[[10, 14]], rtol=1e-12)
-    half = shift_lobes(c, w, jnp.asarray(0.5))
-    assert float(lobe_log_width(half, w) - lobe_log_width(c, w)) == pytest.approx(0.5 * float(_log_width_step(w)), rel=1e-9)
-    np.testing.assert_allclose(float(jnp.sum(half * w**2)), float(jnp.sum(c * w**2)), rtol=1e-12)
