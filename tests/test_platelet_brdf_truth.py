@@ -258,7 +258,7 @@ FINE = 1.41  # node ratio of the grids below (the tracer forward map's default g
 
 @functools.lru_cache(maxsize=None)
 def fine_grid(sigma, tau, source):
-    kw = dict(source=source) if source == "kirchhoff" else dict(num_profiles=16)
+    kw = dict(source=source) if source == "kirchhoff" else dict(num_profiles=8)  # the control variate leaves ~1e-3 relative SE here
     grid = platelet_brdf_grid([sigma / FINE, sigma, sigma * FINE], [tau / FINE, tau, tau * FINE], coherent="delta", **kw)
     return grid, kw
 
