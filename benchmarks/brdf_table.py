@@ -17,13 +17,12 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
-
 import numpy as np  # noqa: E402
 import scipy.linalg  # noqa: E402
 
 from paintjax import TabulatedBRDF, platelet_table_arrays, synthesize_profiles  # noqa: E402
-from paintjax._brdf_table import DEFAULT_INCIDENCE_DEG, DEFAULT_NUM_PROFILES  # noqa: E402
-from paintjax._wave import default_spacing, max_incidence_deg, solve_profiles  # noqa: E402
+from paintjax.brdf._in_plane import DEFAULT_INCIDENCE_DEG, DEFAULT_NUM_PROFILES  # noqa: E402
+from paintjax.wave._solver import default_spacing, max_incidence_deg, solve_profiles  # noqa: E402
 
 
 def timed(fn):

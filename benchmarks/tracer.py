@@ -36,49 +36,13 @@ import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
+from paintjax.tracer import TracerOptions, build_scene, plain_trace_seconds, trace  # noqa: E402
 from paintjax import build_grid, load_sample, ma98_geometry  # noqa: E402
-from paintjax import _tracer as T  # noqa: E402
-from paintjax._commands.simulate import platelet_brdf, sample_array  # noqa: E402
+from paintjax.cli._simulate import platelet_brdf, sample_array  # noqa: E402
 
 GOAL_S = 60.0
-
-
-def plain_tracer(sc, opt, key, rays: int, batch: int) -> float:
-    """Seconds for `rays` rays with one `vmap(while_loop)` per batch (same physics, no wavefront)."""
-    m = sc.det_air.shape[0]
-    dtype = sc.h_b.dtype
-    single = jnp.asarray(False)
-
-    def one_ray(rid):
-        u = T._uniforms(T._ray_hash(key, rid, jnp.asarray(0x7FFFFFFF, jnp.uint32)), T._new_ray_uniforms(sc), dtype)
-        p0, d0, w0, _, c0, s0 = T._new_ray(sc, u, dtype)
-        ray = (p0, d0, w0, jnp.asarray(True), c0, s0, jnp.asarray(0, jnp.int32), jnp.asarray(0, jnp.int32), rid,
-               jnp.asarray(False), jnp.zeros((), dtype), jnp.zeros((), dtype), jnp.zeros(3, dtype), jnp.zeros((m, 3), dtype).at[:, 2].set(1.0), jnp.zeros(m, dtype), jnp.zeros(m, dtype))
-        tally = jnp.zeros(2 * m + len(T.LEDGER_KEYS) + 1, dtype)
-
-        def cond(c):
-            r, _ = c
-            return r[3] | jnp.any(r[-1] > 0)
-
-        def body(c):
-            r, t = c
-            org, dirs, lims, vals = r[-4:]
-            tb, _, _, _, fin = jax.vmap(lambda dd, tl: T._traverse(sc, org, dd, tl, True, sc.shadow_cells))(dirs, lims)
-            t = t.at[:m].add(jnp.where(fin & (tb >= lims), vals, 0.0))
-            r2, inc = T._step_one(sc, opt, r, T._ray_hash(key, rid, r[6]), single)
-            return r2, t + inc
-
-        return jax.lax.while_loop(cond, body, (ray, tally))[1]
-
-    f = jax.jit(jax.vmap(one_ray))
-    jax.block_until_ready(f(jnp.arange(batch, dtype=jnp.int64)))  # compile
-    t0 = time.perf_counter()
-    for start in range(0, rays, batch):
-        jax.block_until_ready(f(jnp.arange(start, start + batch, dtype=jnp.int64)))
-    return time.perf_counter() - t0
 
 
 def say(text: str) -> None:
@@ -95,7 +59,7 @@ def main() -> int:
     ap.add_argument("--coherent-width-factor", type=float, default=1.0)
     ap.add_argument("--detector-aperture", type=float, default=0.0, help="detector cone half-angle [deg] (default 0: point detectors)")
     ap.add_argument("--no-mis", action="store_true", help="NEE alone at finite apertures (default: MIS with BRDF-sampled exits)")
-    ap.add_argument("--reverse-share", type=float, default=T.TracerOptions().reverse_share,
+    ap.add_argument("--reverse-share", type=float, default=TracerOptions().reverse_share,
                     help="bidirectional MIS: reverse rays per forward ray and detector (0: forward tracer alone)")
     ap.add_argument("--forward-max-rays", type=int, default=4_000_000,
                     help="ray ceiling of the forward-alone time-to-precision run (0 skips it)")
@@ -110,47 +74,46 @@ def main() -> int:
     t_array = time.perf_counter() - t0
     brdf = platelet_brdf("wave", sigma=s.sigma.value, tau=s.tau.value, n=s.binder_index)
     if args.coherent_width_factor != 1.0:
-        from paintjax._beckmann import coherent_lobe_width
-        from paintjax._brdf_table import platelet_brdf_table
+        from paintjax.brdf._analytic import coherent_lobe_width
+        from paintjax.brdf._table import platelet_brdf_table
 
         width = args.coherent_width_factor * coherent_lobe_width(0.5, s.binder_index, 16.0)
         brdf = platelet_brdf_table(s.sigma.value, s.tau.value, n_medium=s.binder_index, coherent_width=width)
     geo = ma98_geometry(45.0, detector_aperture_deg=args.detector_aperture)
-    opt = T.TracerOptions(mis=not args.no_mis, reverse_share=args.reverse_share)
-    opt_fwd = T.TracerOptions(mis=not args.no_mis, reverse_share=0.0)
+    opt = TracerOptions(mis=not args.no_mis, reverse_share=args.reverse_share)
+    opt_fwd = TracerOptions(mis=not args.no_mis, reverse_share=0.0)
     kw = dict(grid=grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness)
 
     t0 = time.perf_counter()
     for o in (opt, opt_fwd):  # compile + warm-up (the bidirectional passes' shapes, the forward tracer alone)
-        T.trace(array, geo, brdf, rays=8 * opt.lanes, seed=99, options=o, **kw)
+        trace(array, geo, brdf, rays=8 * opt.lanes, seed=99, options=o, **kw)
     t_compile = time.perf_counter() - t0
     say(f"{jax.devices()[0].platform}: array {t_array:.1f} s, compile + warm-up {t_compile:.1f} s")
     c0 = time.process_time()
-    res = T.trace(array, geo, brdf, rays=args.rays, seed=1, options=opt_fwd, **kw)
+    res = trace(array, geo, brdf, rays=args.rays, seed=1, options=opt_fwd, **kw)
     cpu = time.process_time() - c0
     rate = res.rays / res.seconds
     say(f"forward throughput {rate:.0f} rays/s ({res.rays} rays), L* SE {np.round(res.L_star_se, 2).tolist()}")
-    res_bd = T.trace(array, geo, brdf, rays=args.rays, seed=1, options=opt, **kw)
+    res_bd = trace(array, geo, brdf, rays=args.rays, seed=1, options=opt, **kw)
     say(f"bidirectional throughput {res_bd.rays / res_bd.seconds:.0f} rays/s, L* SE {np.round(res_bd.L_star_se, 2).tolist()}")
 
     ttp = ttp_fwd = None
     runs, runs_fwd = [], []
     if args.target_se > 0:
         for seed in (int(x) for x in args.ttp_seeds.split(",")):
-            runs.append(T.trace(array, geo, brdf, rays=args.rays, seed=seed, target_se_lstar=args.target_se, max_rays=args.max_rays,
+            runs.append(trace(array, geo, brdf, rays=args.rays, seed=seed, target_se_lstar=args.target_se, max_rays=args.max_rays,
                                 options=opt, **kw))
             say(f"seed {seed}: time to SE <= {args.target_se} {runs[-1].seconds:.2f} s, {runs[-1].rays} rays")
             if args.forward_max_rays > 0 and args.reverse_share > 0:
-                runs_fwd.append(T.trace(array, geo, brdf, rays=args.rays, seed=seed, target_se_lstar=args.target_se,
+                runs_fwd.append(trace(array, geo, brdf, rays=args.rays, seed=seed, target_se_lstar=args.target_se,
                                         max_rays=args.forward_max_rays, options=opt_fwd, **kw))
                 say(f"seed {seed}: forward alone {runs_fwd[-1].seconds:.2f} s, {runs_fwd[-1].rays} rays")
         ttp = runs[0]
         ttp_fwd = runs_fwd[0] if runs_fwd else None
 
-    sc = T.build_scene(array, geo, brdf, grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness,
+    sc = build_scene(array, geo, brdf, grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness,
                        primer_albedo=0.3, min_cells=opt.cells_per_step, mis=opt.mis)
-    key = jnp.asarray(np.uint32(T._seed_state(3)))
-    plain_rate = args.plain_rays / plain_tracer(sc, opt, key, args.plain_rays, batch=opt.lanes) if args.plain_rays > 0 else None
+    plain_rate = args.plain_rays / plain_trace_seconds(sc, opt, 3, args.plain_rays, batch=opt.lanes) if args.plain_rays > 0 else None
 
     out = {
         "machine": f"{platform.machine()} {os.cpu_count()} cores, {jax.devices()[0].platform}, load {os.getloadavg()[0]:.1f}",

@@ -31,8 +31,8 @@ import scipy.linalg as sl  # noqa: E402
 import scipy.special as sp  # noqa: E402
 
 from paintjax._io import atomic_write_json  # noqa: E402
-from paintjax._profiles import synthesize_profiles  # noqa: E402
-from paintjax._wave import (  # noqa: E402
+from paintjax.wave._profiles import synthesize_profiles  # noqa: E402
+from paintjax.wave._solver import (  # noqa: E402
     _solve_batch,
     band_width,
     channels,
@@ -141,7 +141,7 @@ def baseline_one(x, h, dh, d2h, dx, inc_rad, per_incidence=True):
 
 def _resampled(fine, n):
     """The same periodic surface as `fine` (one profile) on a centred grid of n points (trig series)."""
-    from paintjax._profiles import Profiles, grid
+    from paintjax.wave._profiles import Profiles, grid
 
     nf = fine.x.shape[0]
     length = nf * fine.spacing
@@ -161,7 +161,7 @@ def _resampled(fine, n):
 def accuracy_sweep():
     """Lobe error vs points per wavelength on one fixed 10 µm surface (Al, TE and TM, 0° and 30°),
     against our solution at 48 ppw: ours and the scipy baseline (first-order self terms)."""
-    from paintjax._wave import solve_profiles
+    from paintjax.wave._solver import solve_profiles
 
     fine = synthesize_profiles(jax.random.PRNGKey(3), SIGMA, TAU, length_um=10.0, spacing_um=default_spacing(LAM, N_MED, 48), num_profiles=1)
     inc = np.array([0.0, 30.0])

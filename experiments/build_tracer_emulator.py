@@ -20,9 +20,10 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 from paintjax._cache import enable_compilation_cache  # noqa: E402
-from paintjax._forward import Emulator, _fit_emulator, make_forward  # noqa: E402
 from paintjax._io import atomic_write_json  # noqa: E402
-from paintjax._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, direct_tracer, tracer_info  # noqa: E402
+from paintjax.inverse._emulator import Emulator, fit_emulator  # noqa: E402
+from paintjax.inverse._registry import make_forward  # noqa: E402
+from paintjax.inverse._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, direct_tracer, tracer_info  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "tracer_forward"
 
@@ -38,6 +39,7 @@ def main():
            "tracer_evaluations_this_process": fn.evaluations, "tracer_seconds_this_process": fn.seconds,
            "error_sd": np.asarray(em.error_sd).tolist(), "key": em.key} | info
     import numpy as _np
+
     from paintjax._cache import default_cache_dir
 
     path = default_cache_dir() / "emulators" / f"emulator-{em.key}.npz"
@@ -50,7 +52,7 @@ def main():
         Yt = d["Yt"]
         rec["held_out_L_range"] = [Yt.min(0).tolist(), Yt.max(0).tolist()]
         # the same design fitted by a plain GP over θ (no analytic mean), for comparison
-        plain = _fit_emulator(d["Z"], d["Y"], d["Zt"], d["Yt"], em.spec, None, (), em.angles, em.source, em.key)
+        plain = fit_emulator(d["Z"], d["Y"], d["Zt"], d["Yt"], em.spec, None, (), em.angles, em.source, em.key)
         rec["plain_gp"] = {"held_out_rms_crn": plain["held_out_rms"].tolist(), "loo_rms_crn": plain["loo_rms"].tolist()}
     atomic_write_json(OUT / "emulator.json", rec)
     print({k: rec[k] for k in ("design_seconds", "gp_train_seconds", "held_out_rms_crn", "loo_rms_crn", "cv_rms_crn", "plain_gp", "seed_spread_sd", "error_sd")})

@@ -15,7 +15,7 @@ parameter, whether the independently measured value (brief §2) lies inside the 
 
 ``--forward tracer-emulator`` (variant ``tracer``): the forward model is the registered GP
 emulator of the ray TRACER (multiple scattering, primer, wave-table machinery with 1-D Kirchhoff
-lobes; built once and cached, see `paintjax._tracer_forward`), free shape, scale, σ, τ (+ δ) on
+lobes; built once and cached, see `paintjax.inverse._tracer_forward`), free shape, scale, σ, τ (+ δ) on
 the tracer box `TRACER_BOX`; the emulator is checked against direct (common-random-number)
 tracer runs at `--check-draws` posterior draws. Output in experiments/output/fit_silver_tracer/.
 
@@ -137,8 +137,8 @@ def run_one(forward, name: str, variant: str, *, walkers: int, max_steps: int, m
 
 def emulator_vs_tracer(forward, post, n: int, seed: int) -> dict:
     """Emulator vs direct tracer runs (common random numbers, what the emulator emulates) at n posterior draws."""
-    from paintjax._forward import emulator_check
-    from paintjax._tracer_forward import direct_tracer
+    from paintjax.inverse._emulator import emulator_check
+    from paintjax.inverse._tracer_forward import direct_tracer
 
     rng = np.random.default_rng(seed)
     cols = [post.names.index(k) for k in forward.parameter_names]
@@ -196,8 +196,8 @@ def main(argv=None, forward_options: dict | None = None) -> dict:
     jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
     build = None
     if tracer:
-        from paintjax._forward import make_forward
-        from paintjax._tracer_forward import tracer_info
+        from paintjax.inverse._registry import make_forward
+        from paintjax.inverse._tracer_forward import tracer_info
 
         t0 = time.perf_counter()
         forward = make_forward("tracer-emulator", VARIANTS["tracer"], **(forward_options or {}))

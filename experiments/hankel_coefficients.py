@@ -1,4 +1,4 @@
-"""Regenerate the Chebyshev tables of paintjax._hankel (needs mpmath: `pip install mpmath`).
+"""Regenerate the Chebyshev tables of paintjax.wave._hankel (needs mpmath: `pip install mpmath`).
 
 For x ≥ X0 the Hankel functions are written H_n(x) = √(2/(πx)) (P_n + iQ_n) exp{i(x − (2n+1)π/4)}
 with P_n = f_n(s), Q_n = (X0/x) g_n(s), s = (X0/x)² ∈ (0, 1]; f_n and g_n are fitted by Chebyshev

@@ -55,9 +55,9 @@ from scipy.optimize import least_squares  # noqa: E402
 
 from paintjax import load_sample  # noqa: E402
 from paintjax._cache import enable_compilation_cache  # noqa: E402
-from paintjax._commands.simulate import simulate  # noqa: E402
 from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
-from paintjax._tracer_forward import TRACER_PARAMETERS, TracerLStar, TracerSettings  # noqa: E402
+from paintjax.cli._simulate import simulate  # noqa: E402
+from paintjax.inverse._tracer_forward import TRACER_PARAMETERS, TracerLStar, TracerSettings  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "input_consistency"
 GOAL_RMS = 5.0

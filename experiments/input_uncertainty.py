@@ -35,8 +35,8 @@ import numpy as np  # noqa: E402
 
 from paintjax import load_sample  # noqa: E402
 from paintjax._cache import enable_compilation_cache  # noqa: E402
-from paintjax._commands.simulate import simulate  # noqa: E402
 from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
+from paintjax.cli._simulate import simulate  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "input_uncertainty"
 INSTRUMENT_SD = 0.3

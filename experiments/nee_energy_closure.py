@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 from paintjax import LambertianBRDF, boolean_platelet_array, build_grid, hemisphere_quadrature, trace  # noqa: E402
 from paintjax._cache import enable_compilation_cache  # noqa: E402
 from paintjax._io import atomic_write_json  # noqa: E402
-from paintjax._tracer import TracerOptions  # noqa: E402
+from paintjax.tracer._options import TracerOptions  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "nee_energy_closure"
 N = 1.5

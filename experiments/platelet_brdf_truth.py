@@ -33,10 +33,10 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from paintjax import BeckmannBRDF, HeTorranceBRDF, TabulatedBRDF, platelet_table_arrays, synthesize_profiles  # noqa: E402
-from paintjax._aluminium import aluminium_index  # noqa: E402
-from paintjax._brdf_table import _fresnel_np, leontovich_reflectance  # noqa: E402
 from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
-from paintjax._wave import default_spacing, profile_averaged_lobes, solve_profiles  # noqa: E402
+from paintjax.brdf._in_plane import _fresnel_np, leontovich_reflectance  # noqa: E402
+from paintjax.optics._aluminium import aluminium_index  # noqa: E402
+from paintjax.wave._solver import default_spacing, profile_averaged_lobes, solve_profiles  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "platelet_brdf_truth"
 AL = complex(np.asarray(aluminium_index(0.5)))

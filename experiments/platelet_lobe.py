@@ -18,9 +18,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from paintjax._io import atomic_savefig, atomic_savez, atomic_write_json  # noqa: E402
-from paintjax._profiles import profile_statistics, synthesize_profiles  # noqa: E402
-from paintjax._wave import default_spacing, solve_profiles  # noqa: E402
-from paintjax._wave_approx import kirchhoff_coherent_fraction, kirchhoff_sigma  # noqa: E402
+from paintjax.wave._closed_forms import kirchhoff_coherent_fraction, kirchhoff_sigma  # noqa: E402
+from paintjax.wave._profiles import profile_statistics, synthesize_profiles  # noqa: E402
+from paintjax.wave._solver import default_spacing, solve_profiles  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "platelet_lobe"
 SIGMA, TAU, LAM, N_MED, LENGTH, COUNT, SEED = 0.051, 0.64, 0.5, 1.5, 20.0, 10, 0

@@ -7,21 +7,34 @@ Writes experiments/output/tracer_forward/run_all.json plus the outputs of the th
 
 Run from the repository root: python experiments/tracer_emulator_study.py
 """
-import sys, time, json, argparse
+import argparse
+import json
+import sys
+import time
+
 sys.path.insert(0, "experiments")
 import jax
+
 jax.config.update("jax_enable_x64", True)
 from pathlib import Path
+
 from paintjax._cache import enable_compilation_cache
+
 enable_compilation_cache()
-import build_tracer_emulator, coverage, fit_silver
+import build_tracer_emulator
+import coverage
+import fit_silver
+
 from paintjax._io import atomic_write_json
+
 L = Path("experiments/output/tracer_forward")
 t = {}
 t0 = time.perf_counter(); build_tracer_emulator.main(); t["build"] = time.perf_counter() - t0
 t0 = time.perf_counter(); coverage.main(["--forward", "tracer-emulator", "--datasets", "20", "--walkers", "24", "--steps", "2000", "--starts", "4"]); t["coverage"] = time.perf_counter() - t0
 t0 = time.perf_counter(); fit_silver.main(["--forward", "tracer-emulator", "--check-draws", "8"]); t["fit_silver"] = time.perf_counter() - t0
-from paintjax._commands.fit import compute
+from paintjax.cli._fit import compute
+
+
 def ns(**kw):
     base = dict(measured=None, sample="silver1", forward="tracer-emulator", free=None, fix=None, starts=8, seed=0, posterior=False,
                 walkers=32, max_steps=20000, min_ess=1000.0, chain=None, out=None, no_progress=True, json=True)

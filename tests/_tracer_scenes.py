@@ -8,14 +8,13 @@ not the generator's hard-core arrays.
 
 from __future__ import annotations
 
-
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from paintjax import fresnel_dielectric
-from paintjax._brdf import LambertianBRDF
-from paintjax._microstructure import boolean_platelet_array
+from paintjax.brdf._platelet import LambertianBRDF
+from paintjax.microstructure._array import boolean_platelet_array
 
 #: Tolerance of every statistical check, in Monte Carlo standard errors (batch means over 32 lane
 #: groups): K = 4 gives a false-alarm rate below 1e-4 per comparison.

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from paintjax import BeckmannBRDF, HeTorranceBRDF, MirrorBRDF, TabulatedBRDF
-from paintjax._brdf_table import kirchhoff_lobes, table_from_lobes
-from paintjax._he_torrance import effective_roughness, shadowing
+from paintjax.brdf._he_torrance import effective_roughness, shadowing
+from paintjax.brdf._in_plane import kirchhoff_lobes
+from paintjax.brdf._table import table_from_lobes
 
 SIGMA, TAU = 0.051, 0.64  # platelet roughness [µm]
 

@@ -10,8 +10,15 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from paintjax import (BeckmannBRDF, TabulatedBRDF, kirchhoff_lobes, platelet_brdf_grid, platelet_brdf_table, platelet_table_arrays,
-                      table_from_lobes)
+from paintjax import (
+    BeckmannBRDF,
+    TabulatedBRDF,
+    kirchhoff_lobes,
+    platelet_brdf_grid,
+    platelet_brdf_table,
+    platelet_table_arrays,
+    table_from_lobes,
+)
 
 SIGMA, TAU = 0.051, 0.64  # kσ ≈ 0.96, kτ ≈ 12 in the binder at λ0 = 0.5 µm: the Kirchhoff regime
 
@@ -148,12 +155,12 @@ def test_builder_validates_input():
         platelet_table_arrays(-1.0, TAU, source="kirchhoff", cache=False)
 
 
-@pytest.mark.skipif(importlib.util.find_spec("paintjax._wave") is None, reason="wave solver not present")
+@pytest.mark.skipif(importlib.util.find_spec("paintjax.wave._solver") is None, reason="wave solver not present")
 def test_small_wave_table_keeps_wave_reflectance(tmp_path):
     """A table from a small wave run keeps the wave's reflected fraction at every solved incidence;
     the serial wiring reproduces `profile_averaged_lobes` (checked on one profile)."""
-    from paintjax._brdf_table import wave_lobes
-    from paintjax._wave import profile_averaged_lobes
+    from paintjax.brdf._in_plane import wave_lobes
+    from paintjax.wave._solver import profile_averaged_lobes
 
     inc = np.array([0.0, 20.0, 40.0])
     ts = np.linspace(-89.5, 89.5, 359)
@@ -168,7 +175,7 @@ def test_small_wave_table_keeps_wave_reflectance(tmp_path):
     assert float(arrays["normalisation_error"]) < 1e-9
 
 
-@pytest.mark.skipif(importlib.util.find_spec("paintjax._wave") is None, reason="wave solver not present")
+@pytest.mark.skipif(importlib.util.find_spec("paintjax.wave._solver") is None, reason="wave solver not present")
 def test_unconverged_wave_table_is_refused(tmp_path):
     """Profiles far too steep for a fixed sampling of 12 points per wavelength (rms slope 77°; the
     default sampling follows the curvature) reflect several times the incident power: refused with the
@@ -201,7 +208,7 @@ def test_speckled_lobes_need_no_renormalisation():
 def test_negative_coherent_estimate_gets_its_positive_part():
     """Rough profiles (true coherent fraction below the estimate's noise): an incidence whose unbiased
     coherent estimate integrates to < 0 gets 0 (σ unchanged); an incidence with a positive estimate keeps it."""
-    from paintjax._brdf_table import InPlaneLobes, coherent_positive_part
+    from paintjax.brdf._in_plane import InPlaneLobes, coherent_positive_part
 
     ts = np.linspace(-89.0, 89.0, 357)
     inc = np.array([0.0, 30.0])

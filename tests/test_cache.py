@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from paintjax._cache import CACHE_FORMAT_VERSION, cache_key, cache_path, cached_arrays, default_cache_dir, save_cached
-from paintjax._brdf_table import platelet_table_arrays
+from paintjax.brdf._table import platelet_table_arrays
 
 
 class Builder:
@@ -64,7 +64,9 @@ def test_foreign_and_tampered_files_are_rebuilt(tmp_path):
         arrays, hit = cached_arrays("t", INPUTS, build, folder=tmp_path)
     assert not hit and not np.all(arrays["a"] == 0)
     # tampered arrays with the original meta: the checksum catches it
-    import io, json, zipfile  # noqa: E401
+    import io  # noqa: E401
+    import json
+    import zipfile
 
     with np.load(path) as z:
         meta, b = str(z["__meta__"]), z["b"]

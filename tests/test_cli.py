@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import paintjax as pj
-from paintjax._cli import main
+from paintjax.cli._main import main
 
 
 def test_microfacet_json_round_trip(capsys):
@@ -100,8 +100,8 @@ def test_bad_input_is_a_one_line_error(argv, needle, capsys):
 
 def test_undefined_values_are_null_in_json(tmp_path):
     """JSON output is standard JSON: a flop index without light at 45° is None (null), never NaN."""
-    from paintjax._commands._common import flop_index_or_none
     from paintjax._io import atomic_write_json, to_jsonable
+    from paintjax._pipeline import flop_index_or_none
 
     assert flop_index_or_none(140.0, 0.0, 30.0) is None and flop_index_or_none(140.0, 60.0, 30.0) > 0
     assert to_jsonable({"a": np.array([1.0, np.nan, np.inf]), "b": np.float64("nan")}) == {"a": [1.0, None, None], "b": None}

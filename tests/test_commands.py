@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from paintjax import flop_index, load_sample
-from paintjax._cli import main
+from paintjax.cli._main import main
 
 #: The ledger's entries come from float32 geometry (`TracerOptions.float64` False) summed in float64:
 #: each path's shares add to its weight within float32 rounding.
@@ -80,7 +80,7 @@ def test_simulate_other_illuminations_are_reciprocal():
     (15° → 30° on the specular side vs 30° → 15° there; 15° → 30° on the illuminator side vs 30° → 15°
     there) give the same reflectance factor within 4 combined SE. Reciprocity, and the paint's statistical
     isotropy under the half-turn that carries each swapped pair onto the instrument's plane convention."""
-    from paintjax._commands.simulate import simulate
+    from paintjax._pipeline import simulate
 
     kw = dict(brdf="kirchhoff", rays=16384, seed=3)
     a = simulate("silver2", illumination_deg=15.0, **kw)
@@ -96,7 +96,7 @@ def test_simulate_other_illuminations_are_reciprocal():
 
 def test_simulate_measured_follows_the_geometry():
     """The published L* are compared only in their own geometry; given values must match the detectors."""
-    from paintjax._commands.simulate import instrument_geometry, measured_lightness
+    from paintjax._pipeline import instrument_geometry, measured_lightness
     from paintjax._samples import load_sample
 
     s = load_sample("silver1")
@@ -112,7 +112,7 @@ def test_simulate_measured_follows_the_geometry():
 def test_adaptive_first_round_follows_the_target():
     """The first round scales as (0.5 / target)² from the default's 131 072 rays, within [16 384, 131 072];
     a target outside (0, 10] fails before any table or array is built."""
-    from paintjax._commands.simulate import first_round_rays, simulate
+    from paintjax._pipeline import first_round_rays, simulate
 
     assert first_round_rays(0.5) == 131072 and first_round_rays(0.3) == 131072
     assert first_round_rays(1.0) == 32768 and first_round_rays(3.0) == 16384
@@ -125,9 +125,9 @@ def test_adaptive_first_round_follows_the_target():
 
 def test_simulate_array_overrides_reach_the_generator():
     """`--d50` scales the sample's width law (and the default tile) and `--platelet-thickness` sets t."""
-    from paintjax._commands.simulate import sample_array
-    from paintjax._microstructure import array_statistics
-    from paintjax._sizes import LogNormalSizes
+    from paintjax._pipeline import sample_array
+    from paintjax.microstructure._sizes import LogNormalSizes
+    from paintjax.microstructure._statistics import array_statistics
 
     a = sample_array("silver1", d50=8.0, platelet_thickness=0.5, pvc=0.05, seed=1)
     w = np.asarray(a.widths)

@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from paintjax._cli import main
-from paintjax._design import design_to_target
-from paintjax._forward import AnalyticForward
+from paintjax.cli._main import main
+from paintjax.inverse._analytic import AnalyticForward
+from paintjax.inverse._design import design_to_target
 
 MIRROR = AnalyticForward(rough=False)
 

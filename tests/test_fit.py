@@ -3,9 +3,12 @@
 import numpy as np
 import pytest
 
-from paintjax._fit import fit_least_squares
-from paintjax._forward import AnalyticForward, CallableForward, build_emulator, emulator_check, make_forward
-from paintjax._parameters import make_spec
+from paintjax.inverse._analytic import AnalyticForward
+from paintjax.inverse._emulator import build_emulator, emulator_check
+from paintjax.inverse._fit import fit_least_squares
+from paintjax.inverse._forward import CallableForward
+from paintjax.inverse._parameters import make_spec
+from paintjax.inverse._registry import make_forward
 
 MIRROR = AnalyticForward(rough=False)
 TRUTH = {"shape": 2.6, "scale": 1.9, "diffuse": 0.15}

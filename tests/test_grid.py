@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from paintjax import PlateletArray, UniformGrid, build_grid, candidate_pairs, check_grid_matches, generate_platelet_array, periodic_overlap
-from paintjax._grid import platelet_boxes
+from paintjax.microstructure._grid import platelet_boxes
 
 
 @pytest.fixture(scope="module")
@@ -196,7 +196,7 @@ def test_single_flat_platelet_across_the_periodic_corner():
 
 def test_incremental_column_hash_finds_every_laterally_touching_platelet():
     """The neighbour search of overlap removal: a superset of the laterally touching pairs."""
-    from paintjax._grid import _ColumnCells
+    from paintjax.microstructure._grid import _ColumnCells
 
     rng = np.random.default_rng(7)
     L = np.array([100.0, 80.0])

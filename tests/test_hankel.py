@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import scipy.special as sp
 
-from paintjax._hankel import X_SWITCH, hankel0, hankel01, hankel01_far, hankel1
+from paintjax.wave._hankel import X_SWITCH, hankel0, hankel01, hankel01_far, hankel1
 
 X = np.geomspace(1e-6, 1e4, 100_001)
 

@@ -1,4 +1,4 @@
-"""The hot spot (paintjax._hot_spot): overlap fraction, depth integral, limits, and its use in the
+"""The hot spot (paintjax.instrument._hot_spot): overlap fraction, depth integral, limits, and its use in the
 analytic single-scatter model. The tracer comparison (wide Poisson platelets) is in test_tracer_single_scatter.py."""
 
 from __future__ import annotations
@@ -9,10 +9,10 @@ import pytest
 from scipy import integrate
 
 from paintjax import GammaTilt, ma98_geometry
-from paintjax._beckmann import BeckmannBRDF
-from paintjax._hot_spot import HotSpot, boolean_escape_monte_carlo, square_overlap_fraction
-from paintjax._instrument import refract_into_coat
-from paintjax._microfacet import microfacet_reflectance_factor
+from paintjax.brdf._analytic import BeckmannBRDF
+from paintjax.instrument._geometry import refract_into_coat
+from paintjax.instrument._hot_spot import HotSpot, boolean_escape_monte_carlo, square_overlap_fraction
+from paintjax.instrument._single_scatter import microfacet_reflectance_factor
 
 
 def _unit(v):
@@ -94,7 +94,7 @@ def test_boolean_monte_carlo_bad_input():
 
 def test_size_law_weights_each_platelet_by_its_area():
     """ρ(s) of a size law = E[w² ρ_w(s)] / E[w²], against Monte Carlo widths drawn from the law."""
-    from paintjax._sizes import LogNormalSizes
+    from paintjax.microstructure._sizes import LogNormalSizes
 
     sizes = LogNormalSizes.from_quantiles(8.0, 16.0, 30.0)
     hot = HotSpot.for_layer(sizes, thickness=1.0, pvc=0.2)
@@ -147,7 +147,7 @@ def test_bad_input(kwargs, word):
 def test_analytic_forward_takes_the_hot_spot():
     """The inverse layer's analytic forward map with a hot spot is the `paintjax microfacet` model (mirrors)."""
     import paintjax as pj
-    from paintjax._commands.microfacet import compute
+    from paintjax.cli._microfacet import compute
 
     s = pj.load_sample("silver1")
     theta = np.array([[s.tilt_shape.value, s.tilt_scale.value, 0.0]])
@@ -161,7 +161,7 @@ def test_analytic_forward_takes_the_hot_spot():
 
 
 def test_registered_analytic_hot_spot_forward():
-    from paintjax._forward import make_forward
+    from paintjax.inverse._registry import make_forward
 
     theta = np.array([[2.29, 2.18, 0.051, 0.64, 0.0]])
     hot, plain = make_forward("analytic-hot-spot"), make_forward("analytic")

@@ -1,4 +1,4 @@
-"""The clearcoat interface (paintjax._interface): facet refraction, Smith-normalised visible weights,
+"""The clearcoat interface (paintjax.optics._interface): facet refraction, Smith-normalised visible weights,
 exact visible-normal sampling, and the wavy-coat analytic model's limits and reciprocity."""
 
 from __future__ import annotations
@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from paintjax import GammaTilt, MirrorBRDF, custom_geometry, ma98_geometry
-from paintjax._interface import (
+from paintjax.instrument._single_scatter import microfacet_reflectance_factor
+from paintjax.optics._interface import (
     check_waviness,
     gauss_hermite_facets,
     reflect,
@@ -20,7 +21,6 @@ from paintjax._interface import (
     smith_masking,
     visible_weight,
 )
-from paintjax._microfacet import microfacet_reflectance_factor
 
 K = 4.0
 

@@ -8,7 +8,7 @@ import pytest
 from scipy import integrate, stats
 
 import paintjax as pj
-from paintjax._microfacet import single_scatter_brdf
+from paintjax.instrument._single_scatter import single_scatter_brdf
 
 
 def _independent_reflectance_factor(shape, scale, n, R_platelet, gammas, exit_occlusion=True):

@@ -26,7 +26,7 @@ from paintjax import (
     platelet_array_for_sample,
     tilt_ks,
 )
-from paintjax._grid import platelet_boxes
+from paintjax.microstructure._grid import platelet_boxes
 
 #: Level of the KS test of the realised tilts against the gamma law.
 KS_LEVEL = 0.01
@@ -71,7 +71,7 @@ def test_reference_tilts_pass_ks(reference):
 
 def test_generator_tilt_law_is_gammatilt():
     """The NumPy tilt CDF/sampler of the generator reproduce GammaTilt (same formula and table)."""
-    from paintjax._microstructure import _sample_tilt_np, _tilt_cdf_np
+    from paintjax.microstructure._array import _sample_tilt_np, _tilt_cdf_np
 
     tilt = GammaTilt(2.98, 2.10)
     t = np.array([0.0, 0.5, 2.0, 6.0, 15.0, 40.0, 90.0, 120.0])

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from paintjax._parameters import PARAMETERS, Parameter, ParameterSpec, get_parameter, make_spec
+from paintjax.inverse._parameters import PARAMETERS, Parameter, ParameterSpec, get_parameter, make_spec
 
 ALL = tuple(PARAMETERS)
 

@@ -17,11 +17,21 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from paintjax import (BeckmannBRDF, HeTorranceBRDF, TabulatedBRDF, kirchhoff_lobes, platelet_brdf_grid, platelet_brdf_table,
-                      platelet_table_arrays, synthesize_profiles, table_from_lobes)
-from paintjax._aluminium import aluminium_index
-from paintjax._brdf_table import _fresnel_np
-from paintjax._wave import expected_control_amplitude, expected_control_power, profile_averaged_lobes
+from paintjax import (
+    BeckmannBRDF,
+    HeTorranceBRDF,
+    TabulatedBRDF,
+    kirchhoff_lobes,
+    platelet_brdf_grid,
+    platelet_brdf_table,
+    platelet_table_arrays,
+    synthesize_profiles,
+    table_from_lobes,
+)
+from paintjax.brdf._in_plane import _fresnel_np
+from paintjax.optics._aluminium import aluminium_index
+from paintjax.wave._coherent import expected_control_amplitude, expected_control_power
+from paintjax.wave._solver import profile_averaged_lobes
 
 HT = dict(sigma_um=0.28, tau_um=1.77, n_medium=1.0)  # the published full-wave validation case (λ0 = 0.5 µm)
 AL = complex(np.asarray(aluminium_index(0.5)))

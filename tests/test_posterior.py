@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from scipy.stats import binom
 
-from paintjax._forward import AnalyticForward
-from paintjax._parameters import make_spec
-from paintjax._posterior import LogPosterior, corner_plot, sample_posterior, save_netcdf
+from paintjax.inverse._analytic import AnalyticForward
+from paintjax.inverse._parameters import make_spec
+from paintjax.inverse._posterior import LogPosterior, corner_plot, sample_posterior, save_netcdf
 
 MIRROR = AnalyticForward(rough=False)
 FREE = ("shape", "scale")

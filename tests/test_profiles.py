@@ -4,7 +4,7 @@ import jax
 import numpy as np
 import pytest
 
-from paintjax._profiles import (
+from paintjax.wave._profiles import (
     LineScan,
     load_line_scan,
     process_line_scan,

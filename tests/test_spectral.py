@@ -1,4 +1,4 @@
-"""Spectral mode (paintjax._spectral): node weights and L*a*b* against colour-science, combination of runs."""
+"""Spectral mode (paintjax.tracer._spectral): node weights and L*a*b* against colour-science, combination of runs."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import paintjax as pj
-from paintjax._spectral import SPECTRAL_NODES_NM, combine_spectral, lab_from_xyz, spectral_node_weights
-from paintjax._tracer import TraceResult
+from paintjax.tracer._result import TraceResult
+from paintjax.tracer._spectral import SPECTRAL_NODES_NM, combine_spectral, lab_from_xyz, spectral_node_weights
 
 
 def test_node_weights_integrate_the_piecewise_linear_spectrum():
@@ -78,8 +78,8 @@ def test_simulate_spectral_with_grey_platelets_is_the_single_wavelength_result(c
     (through the CLI: `paintjax simulate --spectral --json`)."""
     import json
 
-    import paintjax._commands.simulate as sim
-    from paintjax._cli import main
+    import paintjax._pipeline as sim
+    from paintjax.cli._main import main
 
     asked, original = [], sim.platelet_brdf
 
@@ -105,7 +105,7 @@ def test_platelet_brdfs_follow_the_wavelength():
     """`platelet_brdf(..., wavelength_um=λ)` changes the optics (aluminium index, kσ)."""
     import jax.numpy as jnp
 
-    from paintjax._commands.simulate import platelet_brdf
+    from paintjax._pipeline import platelet_brdf
 
     wi, wo = jnp.array([0.3, 0.0, 0.954]), jnp.array([-0.25, 0.1, 0.963])
     for kind in ("mirror", "kirchhoff"):

@@ -1,4 +1,4 @@
-"""The single-scatter model of one tile's mirror platelets (paintjax._tile_single_scatter) against closed forms.
+"""The single-scatter model of one tile's mirror platelets (paintjax.tracer._tile_single_scatter) against closed forms.
 
 Tilted mirrors with tilts at the quantiles of a gamma law: the unoccluded sum Z equals the
 analytic single-scatter model without occlusion (`microfacet_reflectance_factor(...,
@@ -21,11 +21,11 @@ import pytest
 from scipy import stats
 
 from paintjax import GammaTilt, HotSpot, MirrorBRDF, boolean_platelet_array, fresnel_dielectric, ma98_geometry
-from paintjax._grid import build_grid
-from paintjax._instrument import refract_into_coat
-from paintjax._microfacet import microfacet_reflectance_factor
-from paintjax._microstructure import PlateletArray
-from paintjax._tile_single_scatter import tile_mirror_single_scatter
+from paintjax.instrument._geometry import refract_into_coat
+from paintjax.instrument._single_scatter import microfacet_reflectance_factor
+from paintjax.microstructure._array import PlateletArray
+from paintjax.microstructure._grid import build_grid
+from paintjax.tracer._tile_single_scatter import tile_mirror_single_scatter
 
 N_COAT = 1.5
 W, T, ELL, H_B, L = 4.0, 0.02, 5.0, 40.0, 128.0  # width, thickness, mean free depth, basecoat, tile [µm]

@@ -1,4 +1,4 @@
-"""Validation of the ray-batch tracer (paintjax._tracer) against closed forms and between its estimators.
+"""Validation of the ray-batch tracer (paintjax.tracer._trace) against closed forms and between its estimators.
 
 White furnace, energy closure, NEE against the histogram, MIS, reciprocity, determinism, device
 spread and the grid walk; the single-scatter comparisons with independent models are in
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _tracer_scenes import K, N_COAT, SILVER1_TILT, LambertPlateletBRDF, coat_transmittance, empty_array
+from _tracer_scenes import N_COAT, SILVER1_TILT, K, LambertPlateletBRDF, coat_transmittance, empty_array
 
 from paintjax import (
     MirrorBRDF,
@@ -23,8 +23,9 @@ from paintjax import (
     hemisphere_quadrature,
     ma98_geometry,
 )
-from paintjax._grid import build_grid
-from paintjax._tracer import TracerOptions, trace
+from paintjax.microstructure._grid import build_grid
+from paintjax.tracer._options import TracerOptions
+from paintjax.tracer._trace import trace
 
 OPT = TracerOptions(lanes=1024, steps_per_call=16, batches=32)
 OPT_NEE = TracerOptions(lanes=1024, steps_per_call=16, batches=32, mis=False)  # NEE alone at finite apertures
@@ -146,7 +147,7 @@ def test_detectors_no_light_reaches_are_flagged_not_resolved():
     """Horizontal mirrors over a black primer send light only into the specular direction: the detector
     there is reached in every batch, the others never (R exactly 0, batch-means SE 0). Those are flagged
     as not resolved with a warning, and the adaptive rule does not call them converged."""
-    from paintjax._tracer import resolved_detectors
+    from paintjax.tracer._result import resolved_detectors
 
     arr = boolean_platelet_array(1, 100, tile=(40.0, 40.0), basecoat_thickness=20.0, width=4.0, thickness=0.2, margin=2.2)
     grid = build_grid(arr, 5.0, capacity=24)
@@ -194,7 +195,7 @@ def test_multiple_importance_sampling(lambert_scene):
     NEE alone meets the lobe only in rare large spikes, which the exits into the aperture cover, so
     MIS must also lower the standard error where the lobe matters.
     """
-    from paintjax._beckmann import BeckmannBRDF
+    from paintjax.brdf._analytic import BeckmannBRDF
 
     arr, grid = lambert_scene
     brdf = BeckmannBRDF(0.04, 0.6, n_medium=N_COAT)
@@ -225,7 +226,7 @@ def test_bidirectional_mis(lambert_scene, single):
     estimators precise. Dropping the detector's 1/|z_D| from the forward weight alone, or the running
     ratio of the earlier vertices, moved the estimates by 3–9 SE here.
     """
-    from paintjax._beckmann import BeckmannBRDF
+    from paintjax.brdf._analytic import BeckmannBRDF
 
     arr, grid = lambert_scene
     brdf = BeckmannBRDF(0.1, 0.6, n_medium=N_COAT)
@@ -250,7 +251,7 @@ def test_reciprocity(lambert_scene, waviness):
     coat only) tames them. The wavy coat, whose crossings are what it tests, keeps Lambertian
     platelets: through it the forward estimates of the lobe have too heavy a tail for a 2 % SE.
     """
-    from paintjax._beckmann import BeckmannBRDF
+    from paintjax.brdf._analytic import BeckmannBRDF
 
     arr, grid = lambert_scene
     flat = waviness == 0
@@ -312,7 +313,7 @@ import numpy as np
 sys.path.insert(0, {tests!r})
 from _tracer_scenes import LambertPlateletBRDF, empty_array
 from paintjax import build_grid, ma98_geometry, trace
-from paintjax._tracer import TracerOptions
+from paintjax.tracer._trace import TracerOptions
 arr = empty_array(tile=(40.0, 40.0), h_b=20.0, thickness=0.2)
 opt = TracerOptions(lanes=512, steps_per_call=16, batches=32)
 kw = dict(grid=build_grid(arr, 5.0, capacity=24), n=1.5, primer_albedo=0.8, rays=30_000, seed=3, options=opt)
@@ -356,7 +357,8 @@ def test_shadow_rays_are_decided_at_any_obliquity(cell):
     import jax
     import jax.numpy as jnp
 
-    from paintjax._tracer import _WAVY_MAX_TAN_IN, _shadows, build_scene
+    from paintjax.tracer._path import _shadows
+    from paintjax.tracer._scene import _WAVY_MAX_TAN_IN, build_scene
 
     arr = empty_array(tile=(400.0, 400.0), h_b=20.0)
     grid = build_grid(arr, cell, capacity=4)
@@ -408,7 +410,7 @@ def test_traversal_matches_brute_force(thickness):
     import jax
     import jax.numpy as jnp
 
-    from paintjax._tracer import _traverse, build_scene
+    from paintjax.tracer._scene import _traverse, build_scene
 
     arr = boolean_platelet_array(4, 150, tile=(40.0, 40.0), basecoat_thickness=20.0, width=4.0, thickness=thickness,
                                  tilt=(1.2, 20.0), margin=3.4)  # margin ≥ w/√2 + t/2: any tilt stays in the film

@@ -6,8 +6,8 @@ Tiny settings: a 120 µm tile, 2048 rays, closed-form Kirchhoff tables on a 2 ×
 import numpy as np
 import pytest
 
-from paintjax._forward import FORWARDS, make_forward
-from paintjax._tracer_forward import TracerLStar, TracerSettings, direct_tracer, tracer_info
+from paintjax.inverse._registry import FORWARDS, make_forward
+from paintjax.inverse._tracer_forward import TracerLStar, TracerSettings, direct_tracer, tracer_info
 
 TINY = TracerSettings(rays=2048, tile_um=120.0, table_source="kirchhoff", sigma_nodes=(0.04, 0.08, 2),
                       tau_nodes=(0.5, 1.0, 2), lanes=256, batches=8)
@@ -51,7 +51,7 @@ def test_smooth_under_common_random_numbers(fn):
         ratio = np.abs(d_up) / np.maximum(np.abs(d_down), 1e-12)
         assert np.all((ratio > 1 / 3) & (ratio < 3)), (j, d_up, d_down)
     # the transported ("crn") array at the reference tilt is the reference array itself
-    from paintjax._tracer_forward import REFERENCE_TILT
+    from paintjax.inverse._tracer_forward import REFERENCE_TILT
 
     a, ref = fn.array(*REFERENCE_TILT, seed=0), fn.reference_array(0)
     np.testing.assert_allclose(np.asarray(a.normals), np.asarray(ref.normals), atol=1e-6)

@@ -1,4 +1,4 @@
-"""The tracer's single-scatter paths (paintjax._tracer, `single_scatter=True`) against independent models.
+"""The tracer's single-scatter paths (paintjax.tracer._trace, `single_scatter=True`) against independent models.
 
 Mirror platelets (delta paths scored through the aperture splat) against the single-scatter model
 of the same tile (`_tile_single_scatter`, flat coat) and the ensemble model under a wavy coat;
@@ -13,12 +13,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from _tracer_scenes import K, N_COAT, SILVER1_TILT, coat_transmittance
+from _tracer_scenes import N_COAT, SILVER1_TILT, K, coat_transmittance
 
 from paintjax import GammaTilt, HotSpot, MirrorBRDF, boolean_platelet_array, fresnel_dielectric, ma98_geometry
-from paintjax._grid import build_grid
-from paintjax._microfacet import microfacet_reflectance_factor
-from paintjax._tracer import TracerOptions, trace
+from paintjax.instrument._single_scatter import microfacet_reflectance_factor
+from paintjax.microstructure._grid import build_grid
+from paintjax.tracer._options import TracerOptions
+from paintjax.tracer._trace import trace
 
 OPT_THIN = TracerOptions(lanes=1024, steps_per_call=16, batches=32, edges="absorb")
 
@@ -56,7 +57,7 @@ def test_single_scatter_mirror_matches_tile_model(thin_mirror_scene):
     1.1 / +2.9 ± 5.4 % of the ensemble model, and over 8 tiles of 80 µm within −0.1 ± 0.4 /
     0.0 ± 1.0 / +1.6 ± 2.3 %, which checks that model (the hot spot and side walls included).
     """
-    from paintjax._tile_single_scatter import tile_mirror_single_scatter
+    from paintjax.tracer._tile_single_scatter import tile_mirror_single_scatter
 
     arr, grid = thin_mirror_scene
     geo = ma98_geometry(45.0, (15.0, 25.0, 45.0, 75.0, 110.0), detector_aperture_deg=8.0)
@@ -119,7 +120,7 @@ def test_single_scatter_rough_matches_microfacet_model(thin_mirror_scene):
     tolerance (K·SE; hot spot and side walls in the model as in the mirror test; measured
     −0.2 / −0.4 / +0.9 %, i.e. −0.5 / −0.8 / +2.0 SE).
     """
-    from paintjax._beckmann import BeckmannBRDF
+    from paintjax.brdf._analytic import BeckmannBRDF
 
     arr, grid = thin_mirror_scene
     geo = ma98_geometry(45.0)
@@ -148,9 +149,9 @@ def test_single_scatter_wide_platelets_hot_spot():
     """
     import jax.numpy as jnp
 
-    from paintjax._beckmann import BeckmannBRDF
-    from paintjax._hot_spot import HotSpot
-    from paintjax._instrument import refract_into_coat
+    from paintjax.brdf._analytic import BeckmannBRDF
+    from paintjax.instrument._geometry import refract_into_coat
+    from paintjax.instrument._hot_spot import HotSpot
 
     w, t, ell, h_b, L = 16.0, 0.02, 5.0, 60.0, 384.0
     arr = boolean_platelet_array(4, int(round(L * L * h_b / (ell * w * w))), tile=(L, L), basecoat_thickness=h_b, width=w, thickness=t, margin=t)

@@ -1,4 +1,4 @@
-"""Physics checks of the full-wave platelet solver (paintjax._wave) and its closed-form references.
+"""Physics checks of the full-wave platelet solver (paintjax.wave._solver) and its closed-form references.
 
 Surfaces are 10 µm long (taper g = 2.5 µm, N = 360 at the default 12 points per wavelength) so the
 whole file runs in a couple of minutes on two cores; the physics does not need longer ones.
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 import paintjax
-from paintjax._profiles import Profiles, grid, synthesize_profiles
-from paintjax._wave import (
+from paintjax.wave._closed_forms import kirchhoff_sigma, spm_sigma, spm_sigma_realisation
+from paintjax.wave._profiles import Profiles, grid, synthesize_profiles
+from paintjax.wave._solver import (
     channels,
     default_spacing,
     flat_profiles,
@@ -22,7 +23,6 @@ from paintjax._wave import (
     solve_profiles,
     surface_fields,
 )
-from paintjax._wave_approx import kirchhoff_sigma, spm_sigma, spm_sigma_realisation
 
 LAM, N_MED = 0.5, 1.5
 K = 2 * np.pi * N_MED / LAM
@@ -276,7 +276,7 @@ def test_cli_lobe_json(tmp_path, capsys):
     """`paintjax lobe --json` on a synthesised and on a loaded (nm, CSV) profile."""
     import json
 
-    from paintjax._cli import main
+    from paintjax.cli._main import main
 
     rc = main(["lobe", "--profiles", "1", "--length", "6", "--step", "2", "--json", "--out", str(tmp_path / "a")])
     out = json.loads(capsys.readouterr().out)

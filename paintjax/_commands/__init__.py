@@ -1,1 +1,0 @@
-"""Sub-commands of the `paintjax` CLI; each module defines `register(subparsers)`."""

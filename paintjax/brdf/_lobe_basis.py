@@ -1,0 +1,221 @@
+"""The radial lobe basis of the platelet tables: Gaussian widths, fits, continuation and normalisation.
+
+A table's 3-D lobe at each incidence is a non-negative sum of Gaussians in the projected offset
+from specular (`fit_radial_lobe`: inverse Abel transform or rotation of the in-plane cut); outside
+the in-plane reach it is continued in roughness (`continue_lobe`); `normalisation_tensor` and
+`symmetric_scale` make the table reciprocal and energy-conserving.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.optimize import nnls
+
+from ._analytic import disk_quadrature
+
+#: Default fixed Gaussian widths (β units) of the lobe basis.
+DEFAULT_NUM_WIDTHS = 36
+_MIN_WIDTH, _MAX_WIDTH = 0.012, 2.5
+#: In-plane points closer to grazing than this cosine are not used by the lobe fit.
+COS_MIN = 0.1
+#: Relative-error fits: passes with weights from the fitted model after the first (data-weighted) one.
+REWEIGHT_PASSES = 2
+
+
+def _lobe_widths(num_widths: int = DEFAULT_NUM_WIDTHS) -> np.ndarray:
+    return np.geomspace(_MIN_WIDTH, _MAX_WIDTH, num_widths)
+
+
+def fit_radial_lobe(u, p, weights, widths, method: str = "abel", min_width: float = 0.0, *, floor=None, reweight: int = REWEIGHT_PASSES):
+    """Radial 2-D lobe coefficients of in-plane data p at distances u from the specular point.
+
+    Model: p(u) ≈ Σ_k C_k B_k(u) with B_k = √π w_k e^{−u²/w_k²} (abel: the projection of
+    L(ρ) = Σ C_k e^{−ρ²/w_k²}) or e^{−u²/w_k²} (rotate: the in-plane cut of L). Non-negative least
+    squares with a tiny ridge; basis widths below `min_width` are not used.
+
+    Row weights: `weights` as given when `floor` is None. With `floor` (scalar or per row) the fit is
+    in relative error down to the floor: row weights `weights / (ref + floor)`, ref = max(p, 0) in the
+    first pass and the fitted model in `reweight` further passes (iteratively reweighted least
+    squares). Weights taken from noisy data themselves bias the fit low — points that fluctuate down
+    weigh more: for the speckle of an N-profile average (Gamma(N) statistics) by (N − 2)/N, 20 %
+    for 10 profiles, uniformly over the lobe — weights from the smooth model do not.
+
+    Returns:
+        (coefficients C (K,), weighted relative rms residual).
+    """
+    A = np.exp(-(u[:, None] ** 2) / widths**2) * (widths >= min_width)
+    if method == "abel":
+        A = A * (np.sqrt(np.pi) * widths)
+    ref = np.maximum(p, 0.0)
+    for _ in range(1 + (0 if floor is None else int(reweight))):
+        w = weights if floor is None else weights / (ref + floor)
+        Aw = A * w[:, None]
+        ridge = 1e-6 * np.linalg.norm(Aw, axis=0).max()
+        c, _ = nnls(np.vstack([Aw, ridge * np.eye(len(widths))]), np.concatenate([p * w, np.zeros(len(widths))]), maxiter=50 * len(widths))
+        ref = A @ c
+    resid = float(np.sqrt(np.mean(((A @ c - p) * w) ** 2)) / max(np.sqrt(np.mean((p * w) ** 2)), 1e-300))
+    return c, resid
+
+
+#: Smallest half-width in μ̄ of a node's data window (pools ~±14° about normal incidence).
+MIN_WINDOW_MU = 0.03
+
+
+def _hat(mu, mu_nodes, j):
+    """Triangular data weight of node j in μ̄: reaches the neighbouring nodes, at least ±MIN_WINDOW_MU
+    (near normal incidence the nodes crowd in μ and a node alone would see only |u| ≲ 0.08 of its
+    lobe — too little for an inverse Abel transform); constant beyond the last node."""
+    J = mu_nodes.size
+    up = max(mu_nodes[j - 1] - mu_nodes[j] if j > 0 else 0.0, MIN_WINDOW_MU)
+    down = max(mu_nodes[j] - mu_nodes[j + 1] if j < J - 1 else 0.0, MIN_WINDOW_MU)
+    d = mu - mu_nodes[j]
+    h = np.where(d >= 0, 1.0 - d / up, 1.0 - (-d) / down)
+    if j == 0:
+        h = np.where(d >= 0, 1.0, h)
+    if j == J - 1:
+        h = np.where(d < 0, 1.0, h)
+    return np.clip(h, 0.0, 1.0)
+
+
+def geometric_factor(rho2, c, xp=jnp):
+    """Kirchhoff geometric (obliquity) factor G = (ρ² + c²)² / (4c²) = 4cos⁴χ / c² of a direction pair.
+
+    ρ² = |β_i + β_o|², c = cosθ_i + cosθ_o, so ρ² + c² = |ω_i + ω_o|² = 4cos²χ. It is Beckmann's F₃²cos²θ_i
+    in 3-D and reduces to (1 + cos(θ_i + θ_s))² / c² in the plane of incidence (ρ = |u|): the same
+    function of (ρ, c) in 2-D and 3-D. Normalised to 1 at the specular point of normal incidence.
+    """
+    return (rho2 + c**2) ** 2 / xp.maximum(4.0 * c**2, 1e-300)
+
+
+#: Smallest share of a node's projected lobe that its in-plane data must reach (else: continued).
+MIN_COVERAGE = 0.99
+#: Smallest range of c = 2μ̄ over the covered nodes for which (kσ)² is estimated and lobes continued.
+MIN_C_SPAN = 0.2
+
+
+def in_plane_reach(c, cos_min: float = COS_MIN) -> np.ndarray:
+    """Largest distance |u| from the specular point that an in-plane pair with μ_i + μ_o = c
+    (both cosines > cos_min, same side of the normal) reaches: |sinθ_a − sinθ_b| at the ends."""
+    c = np.atleast_1d(np.asarray(c, float))
+    mu_a = np.clip(np.minimum(c - cos_min, 1.0), cos_min, 1.0)
+    mu_b = np.clip(c - mu_a, cos_min, 1.0)
+    return np.where(c > 2 * cos_min, np.abs(np.sqrt(1 - mu_a**2) - np.sqrt(1 - mu_b**2)), 0.0)
+
+
+def _hankel_pair(widths, rho_max: float = 2.2, n_panels: int = 80, n_gl: int = 16):
+    """(r nodes, ρ grid, quadrature kernel K) with L(ρ) = K @ g(r) = ∫ g(r) J0(2πρr) 2πr dr; the basis
+    e^{−ρ²/w²} has g(r) = πw² e^{−π²w²r²}."""
+    from scipy.special import j0
+
+    r_max = 5.0 / (np.pi * widths.min())
+    x, w = np.polynomial.legendre.leggauss(n_gl)
+    edges = np.linspace(0.0, r_max, n_panels + 1)
+    half = 0.5 * np.diff(edges)[:, None]
+    r = ((edges[:-1, None] + half) + half * x).ravel()
+    wr = (half * w).ravel() * 2.0 * np.pi * r
+    rho = np.linspace(0.0, rho_max, 441)
+    return r, rho, j0(2.0 * np.pi * rho[:, None] * r[None, :]) * wr
+
+
+def continue_lobe(coef_ref, widths, X_ref: float, X_new: float, kernel, min_width: float = 0.0):
+    """Radial lobe at another q_z by the generalised Harvey–Shack (Kirchhoff) surface transfer function.
+
+    The lobe's 2-D Fourier transform (an autocovariance-like function of lateral distance r) is
+    g(r) = A e^{−X} (e^{X γ(r)} − 1), X = (kσc)², γ(0) = 1. From the reference lobe (X_ref) take
+    A = g(0)/(1 − e^{−X_ref}) and γ(r) = ln(1 + e^{X_ref} g/A)/X_ref, evaluate g at X_new, transform
+    back and fit the Gaussian basis (relative weights down to 1 % of the peak, non-negative).
+    """
+    r, rho, K = kernel
+    g_ref = np.sum(coef_ref * np.pi * widths**2 * np.exp(-(np.pi**2) * widths**2 * r[:, None] ** 2), -1)
+    A = g_ref[0] / -np.expm1(-X_ref)
+    if not A > 0:
+        return np.zeros_like(coef_ref)
+    gamma = np.log1p(np.maximum(g_ref, 0.0) * np.exp(X_ref) / A) / X_ref
+    L = K @ (A * np.exp(-X_new) * np.expm1(X_new * gamma))
+    c, _ = fit_radial_lobe(rho, L, np.ones_like(L), widths, "rotate", min_width, floor=0.01 * max(L.max(), 1e-300))
+    return c
+
+
+def _roughness(mu, R_coh, R_inc, integrals):
+    """(kσ)² of the surface from the tabulated incidences given (cosines μ, coherent and incoherent
+    reflectance, lobe integrals ∫L d²ρ): from the coherent fraction R_coh/R = e^{−(2kσμ)²} (least
+    squares in its logarithm over incidences where it lies in [1e-4, 0.9]); without a usable coherent
+    part, from the q_z dependence of the lobe integrals A(1 − e^{−(kσ)²(2μ)²}) (best of a fine grid)."""
+    frac = R_coh / np.maximum(R_coh + R_inc, 1e-300)
+    use = (frac >= 1e-4) & (frac <= 0.9)
+    if np.any(use):
+        return float(np.sum(mu[use] ** 2 * -np.log(frac[use])) / (4.0 * np.sum(mu[use] ** 4)))
+    grid = np.geomspace(1e-3, 30.0, 1201)
+    shape = -np.expm1(-grid[:, None] * (2.0 * mu[None, :]) ** 2)
+    A = shape @ integrals / np.sum(shape**2, -1)
+    return float(grid[np.argmin(np.sum((A[:, None] * shape - integrals) ** 2, -1))])
+
+
+def _interp_index(mu, mu_nodes_desc, xp=jnp):
+    """(j0, t): μ between tabulated nodes j0, j0+1 (nodes in ascending incidence, i.e. descending μ)."""
+    J = mu_nodes_desc.shape[0]
+    idx = xp.interp(mu, mu_nodes_desc[::-1], xp.arange(J - 1, -1, -1, dtype=mu_nodes_desc.dtype))
+    j0 = xp.clip(xp.floor(idx).astype(xp.int32), 0, max(J - 2, 0))
+    return j0, idx - j0
+
+
+def _interp_rows(values, j0, t):
+    """Linear interpolation of values (J, ...) at (j0, t) broadcast over leading dims."""
+    if values.shape[0] == 1:
+        return values[jnp.zeros_like(j0)]
+    tt = t.reshape(t.shape + (1,) * (values.ndim - 1))
+    return (1.0 - tt) * values[j0] + tt * values[j0 + 1]
+
+
+def normalisation_tensor(mu_nodes, widths) -> np.ndarray:
+    """T (J, J, J, K) with ∫_disk f_inc(ω_j, ω_o) cosθ_o dω_o = Σ_l a_j a_l Σ_mk T[j, l, m, k] C[m, k].
+
+    f_inc = a(μ_i) a(μ_o) G L(ρ; μ̄)/(μ_i μ_o) is linear in the lobe coefficients C (J, K), which
+    are interpolated linearly in μ̄ between nodes m, and in a(μ_o), interpolated between nodes l: the
+    disk quadrature (`disk_quadrature`) about each tabulated incidence j gives the tensor once, so the
+    normalisation kernel K = T·C of any coefficients (e.g. interpolated across a (σ, τ) grid) costs
+    one contraction.
+    """
+    from scipy import sparse
+
+    mu_nodes = np.asarray(mu_nodes, float)
+    widths = np.asarray(widths, float)
+    J = mu_nodes.size
+    wi, wo, wt = disk_quadrature(mu_nodes, xp=np)
+    mu_o = wo[..., 2]
+    rho2 = (wo[..., 0] + wi[:, None, 0]) ** 2 + wo[..., 1] ** 2
+    mu_bar = 0.5 * (mu_nodes[:, None] + mu_o)
+    T = np.zeros((J, J * J, widths.size))
+    for j in range(J):
+        g = geometric_factor(rho2[j], 2.0 * mu_bar[j], xp=np) * wt[j] / (mu_nodes[j] * mu_o[j])
+        basis = np.exp(-rho2[j][:, None] / widths**2) * g[:, None]  # (Q, K)
+        if J == 1:
+            T[0, 0] = basis.sum(0)
+            continue
+        m0, t = _interp_index(mu_bar[j], mu_nodes, xp=np)
+        l0, s = _interp_index(mu_o[j], mu_nodes, xp=np)
+        q = np.arange(mu_o[j].size)
+        rows = np.concatenate([l0 * J + m0, l0 * J + m0 + 1, (l0 + 1) * J + m0, (l0 + 1) * J + m0 + 1])
+        vals = np.concatenate([(1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t])
+        W = sparse.csr_matrix((vals, (rows, np.tile(q, 4))), shape=(J * J, q.size))
+        T[j] = W @ basis
+    return T.reshape(J, J, J, widths.size)
+
+
+def symmetric_scale(Kmat, R_inc, a0, iterations: int, xp=jnp):
+    """a (J,) with a_j Σ_l K_jl a_l = R_inc,j: symmetric Sinkhorn iteration a ← √(a R / (K a)) from a0
+    (0 where R_inc = 0). `xp` = numpy (table builds) or jax.numpy (grid interpolation, differentiable)."""
+    pos = R_inc > 0
+
+    def step(a):
+        Ka = Kmat @ a
+        return xp.where(pos, xp.sqrt(xp.maximum(a, 0.0) * R_inc / xp.maximum(Ka, 1e-300)), 0.0)
+
+    if xp is np:
+        a = a0
+        for _ in range(iterations):
+            a = step(a)
+        return a
+    return jax.lax.fori_loop(0, iterations, lambda _, a: step(a), a0)

@@ -1,0 +1,53 @@
+"""Shared pieces of the sub-commands: JSON output, sample overrides, output folders."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+
+from .._io import to_jsonable
+from .._pipeline import D50_RANGE_UM
+
+
+def print_json(obj) -> None:
+    json.dump(to_jsonable(obj), sys.stdout, indent=None, allow_nan=False)
+    sys.stdout.write("\n")
+
+
+def format_optional(value, spec: str = ".2f") -> str:
+    """`value` formatted, or an em dash for None."""
+    return "—" if value is None else format(value, spec)
+
+
+def parse_floats(text: str, name: str, count: int | None = None) -> list[float]:
+    """Comma-separated finite numbers of option `name` (exactly `count` of them if given)."""
+    try:
+        values = [float(v) for v in str(text).replace(" ", "").split(",") if v != ""]
+    except ValueError:
+        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
+    if not values or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{name} must be comma-separated finite numbers, got {text!r}")
+    if count is not None and len(values) != count:
+        raise ValueError(f"{name} must have {count} comma-separated values, got {len(values)}")
+    return values
+
+
+def add_output_argument(parser, default: str) -> None:
+    parser.add_argument("--out", default=default, help=f"folder for data and plots (default: {default})")
+
+
+def add_json_argument(parser) -> None:
+    parser.add_argument("--json", action="store_true", help="print machine-readable JSON to stdout instead of a table")
+
+
+def add_array_arguments(parser) -> None:
+    """`--pvc`, `--d50` and `--platelet-thickness`: the platelet overrides of `array_overrides`."""
+    from ..microstructure._array import MAX_PVC
+
+    parser.add_argument("--pvc", type=float, help=f"pigment volume concentration in (0, {MAX_PVC}]; default: the sample's (0.20)")
+    parser.add_argument("--d50", type=float,
+                        help=f"median platelet width [µm] in [{D50_RANGE_UM[0]:g}, {D50_RANGE_UM[1]:g}]: the sample's log-normal width law scaled to this median (D10, D90 and "
+                        "the default tile in proportion); default: the sample's (16, D10 ≈ 8, D90 ≈ 30; not measured)")
+    parser.add_argument("--platelet-thickness", type=float,
+                        help="platelet thickness t [µm] (> 0, below the basecoat's); default: the sample's (1.0, the original study's value)")

@@ -1,0 +1,68 @@
+"""The `paintjax` console script: one sub-command per module in `paintjax.cli`.
+
+Float64 is enabled here (the CLI is a documented place that needs it); errors in user input are
+reported as one line naming the parameter, with exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from pathlib import Path
+
+#: Sub-command modules under paintjax.cli, in the order `--help` lists them.
+COMMANDS = ("demo", "microfacet", "array", "brdf", "lobe", "fit", "design", "simulate", "table1")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="paintjax",
+        description="Hybrid ray-wave appearance model of metallic paint (lengths in µm, angles in degrees).",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        importlib.import_module(f"paintjax.cli._{name}").register(sub)
+    return parser
+
+
+def _check_output_folder(out) -> None:
+    """Fail at once, before any work, where `--out` could not be created or written (ValueError
+    naming --out); nothing is created here."""
+    if not out:
+        return
+    path = Path(out).absolute()
+    probe = path
+    while not probe.exists():  # the nearest existing folder must let us create the rest
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ValueError(f"--out must be a folder, but {str(probe)!r} is a file, got {out!r}")
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ValueError(f"--out must be a folder that can be written, but {str(probe)!r} is not writable, got {out!r}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        _check_output_folder(getattr(args, "out", None))
+        result = args.func(args)
+    except ValueError as err:
+        print(f"paintjax {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:  # e.g. a full disk or an unwritable cache folder ($PAINTJAX_CACHE)
+        print(f"paintjax {args.command}: error: {err}", file=sys.stderr)
+        return 1
+    except BrokenPipeError:  # the reader went away (`paintjax … | head`): results on disk are complete
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
+    return int(result or 0)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

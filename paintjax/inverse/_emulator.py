@@ -1,0 +1,383 @@
+"""A Gaussian-process emulator of an expensive forward map (the tracer): design, fit, check, cache.
+
+`build_emulator` evaluates the forward map on a space-filling design over the prior box (checkpointed,
+cached under a content hash), fits one Matérn-5/2 GP per angle on top of an analytic mean, and
+reports held-out errors; `Emulator` is then a jittable `ForwardModel` with a model-error term.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .._cache import default_cache_dir
+from .._io import atomic_savez
+from ..instrument._geometry import STANDARD_ASPECULAR
+from ._forward import ForwardModel, Restricted
+from ._parameters import ParameterSpec
+
+EMULATOR_VERSION = 1  # meaning of the cached design evaluations (bump to re-run them)
+EMULATOR_FIT_VERSION = 4  # meaning of the fit on top of them (a change only re-fits, from the cached design)
+
+# ------------------------------------------------------------------------------------------
+# Gaussian-process emulator
+# ------------------------------------------------------------------------------------------
+def _matern52(x1, x2, log_ls, log_amp):
+    d = (x1[:, None, :] - x2[None, :, :]) / jnp.exp(log_ls)
+    r = jnp.sqrt(jnp.sum(d**2, -1) + 1e-12)
+    s5 = jnp.sqrt(5.0) * r
+    return jnp.exp(2.0 * log_amp) * (1.0 + s5 + 5.0 / 3.0 * r**2) * jnp.exp(-s5)
+
+
+def _gram(X, hyp):
+    """Training covariance K of a GP with packed hyperparameters (log length scales, log amplitude, log noise)."""
+    p = X.shape[1]
+    return _matern52(X, X, hyp[:p], hyp[p]) + (jnp.exp(2.0 * hyp[p + 1]) + 1e-8) * jnp.eye(X.shape[0])
+
+
+def _neg_log_marginal(hyp, X, y):
+    p = X.shape[1]
+    log_ls, log_noise = hyp[:p], hyp[p + 1]
+    L = jnp.linalg.cholesky(_gram(X, hyp))
+    a = jax.scipy.linalg.cho_solve((L, True), y)
+    nll = 0.5 * y @ a + jnp.sum(jnp.log(jnp.diag(L)))
+    # Weak log-normal regularisation of the hyperparameters keeps the optimum away from degenerate corners.
+    reg = 0.5 * jnp.sum(((log_ls - jnp.log(0.3)) / 1.5) ** 2) + 0.5 * ((log_noise - jnp.log(1e-3)) / 3.0) ** 2
+    return nll + reg
+
+
+#: Starting (length scale, noise) pairs of the hyperparameter search; the best marginal likelihood wins
+#: (one start alone landed in different local optima for near-identical data).
+_GP_STARTS = ((0.3, 1e-2), (1.0, 1e-2), (0.1, 1e-2), (0.3, 0.1))
+
+
+@jax.jit
+def _fit_gp(X, Y):
+    """Fit one GP per output column of Y (standardised): type-II maximum likelihood by optimistix BFGS
+    from several starts (`_GP_STARTS`), keeping the best."""
+    import optimistix as optx
+
+    p = X.shape[1]
+    objective = lambda h, y: _neg_log_marginal(h, X, y)  # noqa: E731
+
+    def from_start(y, ls, noise):
+        h0 = jnp.concatenate([jnp.full((p,), jnp.log(ls)), jnp.zeros(1), jnp.full((1,), jnp.log(noise))])
+        sol = optx.minimise(objective, optx.BFGS(rtol=1e-6, atol=1e-6), h0, args=y, max_steps=300, throw=False)
+        h = jnp.where(jnp.all(jnp.isfinite(sol.value)), sol.value, h0)
+        val = objective(h, y)
+        return h, jnp.where(jnp.isfinite(val), val, jnp.inf)
+
+    starts = jnp.asarray(_GP_STARTS)
+
+    def fit_one(y):
+        hs, vals = jax.vmap(lambda st: from_start(y, st[0], st[1]))(starts)
+        h = hs[jnp.argmin(vals)]
+        h = h.at[p + 1].set(jnp.clip(h[p + 1], jnp.log(1e-5), jnp.log(0.3)))
+        alpha = jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(_gram(X, h)), True), y)
+        return h, alpha
+
+    return jax.vmap(fit_one, in_axes=1)(Y)
+
+
+class Emulator(ForwardModel):
+    """Gaussian-process emulator of a forward map over the box of `spec` (see `build_emulator`).
+
+    Inputs are the parameters of `spec` (physical units); outside the box they are clipped.
+    `error_sd` is the cross-validated RMS error per angle: the held-out errors (independent LHS set)
+    pooled with the leave-one-out errors of the training design, so that it rests on all
+    n_train + n_test runs (the held-out set alone is small); `held_out_rms` and `held_out_loo_rms`
+    are the two parts, `held_out_max` the largest held-out error.
+    With a `mean_model`, L* = c₀ + c₁·L*_mean + GP([unit θ, standardised L*_mean at `mean_features`]).
+    """
+
+    X: Float[Array, "n q"]
+    alpha: Float[Array, "m n"]
+    hyper: Float[Array, "m q"]
+    y_mean: Float[Array, " m"]
+    y_std: Float[Array, " m"]
+    spec: ParameterSpec = eqx.field(static=True)
+    angles: tuple[float, ...] = eqx.field(static=True)
+    held_out_rms: tuple[float, ...] = eqx.field(static=True)
+    held_out_max: float = eqx.field(static=True)
+    source: str = eqx.field(static=True)
+    key: str = eqx.field(static=True)
+    mean_model: "ForwardModel | None" = None
+    mean_cols: tuple[int, ...] = eqx.field(static=True, default=())
+    mean_vals: tuple[float, ...] = eqx.field(static=True, default=())
+    mean_features: tuple[int, ...] = eqx.field(static=True, default=())
+    mean_coef: Float[Array, "m 2"] | None = None
+    feature_shift: Float[Array, " f"] | None = None
+    feature_scale: Float[Array, " f"] | None = None
+    held_out_loo_rms: tuple[float, ...] = eqx.field(static=True, default=())
+    fit_id: str = eqx.field(static=True, default="")
+    n_test: int = eqx.field(static=True, default=0)
+
+    @property
+    def parameter_names(self):
+        return self.spec.names
+
+    @property
+    def aspecular_deg(self):
+        return np.asarray(self.angles)
+
+    @property
+    def error_sd(self):
+        held = np.asarray(self.held_out_rms)
+        if not self.held_out_loo_rms:
+            return held
+        n_train, n_test = self.X.shape[0], self.n_test
+        return np.sqrt((n_train * np.asarray(self.held_out_loo_rms) ** 2 + n_test * held**2) / (n_train + n_test))
+
+    def fingerprint(self):
+        return f"Emulator({self.key},{hashlib.sha256(self.fit_id.encode()).hexdigest()[:12]})"
+
+    def evaluate(self, theta):
+        z = jnp.clip(self.spec.to_unit(theta), 0.0, 1.0)
+        prior = 0.0
+        if self.mean_model is not None:
+            a = self.mean_model.evaluate(_assemble(self.spec.from_unit(z), self.mean_cols, self.mean_vals))
+            prior = self.mean_coef[:, 0] + self.mean_coef[:, 1] * a
+            z = jnp.concatenate([z, (a[:, list(self.mean_features)] - self.feature_shift) / self.feature_scale], axis=-1)
+        q = z.shape[-1]
+
+        def one(h, a):
+            return _matern52(z, self.X, h[:q], h[q]) @ a
+
+        gp = jax.vmap(one, out_axes=1)(self.hyper, self.alpha)
+        return prior + self.y_mean + self.y_std * gp
+
+
+def _sobol(n: int, d: int, seed: int) -> np.ndarray:
+    from scipy.stats import qmc
+
+    m = int(math.ceil(math.log2(max(n, 2))))
+    return qmc.Sobol(d, scramble=True, seed=seed).random_base2(m)[:n]
+
+
+def _lhs(n: int, d: int, seed: int) -> np.ndarray:
+    from scipy.stats import qmc
+
+    return qmc.LatinHypercube(d, seed=seed).random(n)
+
+
+def emulator_key(source: str, spec: ParameterSpec, n_train: int, n_test: int, seed: int) -> str:
+    """Content hash of everything that determines an emulator."""
+    text = json.dumps([EMULATOR_VERSION, source, spec.fingerprint(), int(n_train), int(n_test), int(seed)])
+    return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+def _evaluate_design(fn, Z: np.ndarray, spec: ParameterSpec, batch: int, checkpoint: Path | None, progress: bool) -> np.ndarray:
+    """Evaluate fn on the unit-cube design Z in batches, check-pointing after each batch."""
+    n = Z.shape[0]
+    Y, done = None, 0
+    if checkpoint is not None and checkpoint.exists():
+        with np.load(checkpoint) as d:
+            if d["Z"].shape == Z.shape and np.allclose(d["Z"], Z):
+                Y, done = np.array(d["Y"]), int(d["done"])
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n, initial=done, desc="emulator design", leave=False)
+    while done < n:
+        stop = min(n, done + batch)
+        x = np.asarray(spec.from_unit(Z[done:stop]))
+        y = np.asarray(fn(x), dtype=float)
+        if Y is None:
+            Y = np.full((n, y.shape[1]), np.nan)
+        Y[done:stop] = y
+        done = stop
+        if checkpoint is not None:
+            atomic_savez(checkpoint, Z=Z, Y=Y, done=done)
+        if bar is not None:
+            bar.update(y.shape[0])
+    if bar is not None:
+        bar.close()
+    return Y
+
+
+def build_emulator(
+    fn: Callable | ForwardModel | "Restricted",
+    spec: ParameterSpec,
+    *,
+    source: str | None = None,
+    n_train: int = 256,
+    n_test: int = 64,
+    seed: int = 0,
+    cache_dir: str | os.PathLike | None | Literal["default"] = "default",
+    batch: int = 64,
+    aspecular_deg=None,
+    progress: bool = False,
+    mean: "Restricted | None" = None,
+    mean_features: Sequence[int] = (),
+) -> Emulator:
+    """Train (or load from cache) a GP emulator of `fn` over the box of `spec`.
+
+    The training design is a scrambled Sobol sequence in the unit cube of `spec` (linear or log
+    coordinates), the test design an independent Latin hypercube; `fn` is called in batches with
+    physical θ (batch, len(spec)). Give `fn` common random numbers (a fixed key) when it is
+    stochastic. The cache file is `<cache_dir>/emulator-<key>.npz`, key = hash of `source`,
+    the spec, the design sizes and the seed; design evaluations are check-pointed to
+    `<key>.partial.npz` so an interrupted build resumes.
+
+    Arguments:
+        fn: forward callable of the parameters of `spec`, a `ForwardModel` with exactly those
+            inputs, or a `Restricted` model.
+        spec: free parameters and their box.
+        source: identity of `fn` for the cache key (defaults to its `fingerprint()`; required for
+            plain callables).
+        n_train, n_test: design sizes (n_train ≥ 8·len(spec) recommended).
+        seed: seed of both designs.
+        cache_dir: cache folder; "default" is `default_cache_dir()/emulators`; None for no cache.
+        batch: evaluations per call of `fn`.
+        aspecular_deg: output angles (defaults to those of `fn` or the five standard ones).
+        progress: show a progress bar over the design.
+        mean: optional cheap, jit-able model of the same parameters (a `Restricted`): the GP then
+            emulates fn − (c₀ + c₁·mean) per angle, with the mean's L* at `mean_features` (output
+            columns) as extra inputs. Changing it re-fits from the cached design, no new fn calls.
+        mean_features: output columns of `mean` used as GP inputs.
+
+    Returns:
+        An `Emulator` (a `ForwardModel` over `spec.names`).
+    """
+    if n_train < 2 * len(spec) + 2 or n_test < 4:
+        raise ValueError(f"n_train must be >= {2 * len(spec) + 2} and n_test >= 4, got {n_train}, {n_test}")
+    if isinstance(fn, (ForwardModel, Restricted)):
+        names = fn.names if isinstance(fn, Restricted) else fn.parameter_names
+        if tuple(names) != spec.names:
+            raise ValueError(f"fn inputs {tuple(names)} differ from the spec's parameters {spec.names}")
+        source = source or fn.fingerprint()
+        if aspecular_deg is None:
+            aspecular_deg = (fn.model if isinstance(fn, Restricted) else fn).aspecular_deg
+    if not source:
+        raise ValueError("source must identify fn (a string that changes with its behaviour) for the cache key")
+    angles = tuple(float(a) for a in (STANDARD_ASPECULAR if aspecular_deg is None else aspecular_deg))
+    key = emulator_key(source, spec, n_train, n_test, seed)
+    if cache_dir == "default":
+        cache_dir = default_cache_dir() / "emulators"
+    path = None if cache_dir is None else Path(cache_dir) / f"emulator-{key}.npz"
+    if mean is not None:
+        if not isinstance(mean, Restricted) or tuple(mean.names) != spec.names or not mean.jittable:
+            raise ValueError(f"mean must be a jit-able Restricted model of exactly the parameters {spec.names} (in that order)")
+        if tuple(float(a) for a in mean.model.aspecular_deg) != angles:
+            raise ValueError(f"mean's angles {list(mean.model.aspecular_deg)} differ from the emulated ones {list(angles)}")
+        if any(not 0 <= int(i) < len(angles) for i in mean_features):
+            raise ValueError(f"mean_features must be output columns in [0, {len(angles) - 1}], got {list(mean_features)}")
+    mean_id = "none" if mean is None else f"{mean.fingerprint()}|features={list(mean_features)}"
+    fit_id = f"v{EMULATOR_FIT_VERSION}|{mean_id}"
+    arrays = None
+    if path is not None and path.exists():
+        with np.load(path) as d:
+            arrays = {k: np.array(d[k]) for k in d.files}
+        if str(arrays.get("fit_id", "")) == fit_id:
+            return _emulator_from_arrays(arrays, spec, angles, source, key, mean, mean_features)
+        if "Z" not in arrays and "X" in arrays:  # files of fit version 1 stored the design as X
+            arrays["Z"] = arrays["X"]
+        arrays = {k: arrays[k] for k in ("Z", "Y", "Zt", "Yt", "design_seconds") if k in arrays}  # re-fit the cached design
+    if arrays is None or "Z" not in arrays:
+        t0 = time.perf_counter()
+        Z = _sobol(n_train, len(spec), seed)
+        Zt = _lhs(n_test, len(spec), seed + 1)
+        ckpt = None if path is None else path.with_suffix(".partial.npz")
+        Yall = _evaluate_design(fn, np.concatenate([Z, Zt]), spec, batch, ckpt, progress)
+        if not np.all(np.isfinite(Yall)):
+            raise ValueError("the forward callable returned non-finite L* on the design; narrow the parameter bounds")
+        arrays = dict(Z=Z, Y=Yall[:n_train], Zt=Zt, Yt=Yall[n_train:], design_seconds=time.perf_counter() - t0)
+    else:
+        ckpt = None
+    arrays = arrays | fit_emulator(arrays["Z"], arrays["Y"], arrays["Zt"], arrays["Yt"], spec, mean, mean_features, angles, source, key)
+    arrays["fit_id"] = np.array(fit_id)
+    if path is not None:
+        atomic_savez(path, **arrays)
+        if ckpt is not None and ckpt.exists():
+            ckpt.unlink()
+    return _emulator_from_arrays(arrays, spec, angles, source, key, mean, mean_features)
+
+
+def _mean_inputs(spec, mean, mean_features, Z):
+    """(L* of the mean model at the unit-cube points Z, the columns used as features)."""
+    a = np.asarray(mean.evaluate(jnp.asarray(spec.from_unit(Z))))
+    return a, a[:, list(mean_features)]
+
+
+def fit_emulator(Z, Y, Zt, Yt, spec, mean, mean_features, angles, source, key) -> dict:
+    """GP fit (with the optional physics-informed mean) and its held-out and leave-one-out errors."""
+    t0 = time.perf_counter()
+    out = {}
+    X, target = Z, Y
+    if mean is not None:
+        a, f = _mean_inputs(spec, mean, mean_features, Z)
+        coef = np.stack([np.linalg.lstsq(np.c_[np.ones(len(a)), a[:, k]], Y[:, k], rcond=None)[0] for k in range(Y.shape[1])])
+        shift, scale = f.mean(0), f.std(0) + 1e-9
+        X = np.concatenate([Z, (f - shift) / scale], axis=1)
+        target = Y - (coef[:, 0] + coef[:, 1] * a)
+        out |= dict(mean_coef=coef, feature_shift=shift, feature_scale=scale)
+    y_mean, y_std = target.mean(0), target.std(0) + 1e-12
+    hyper, alpha = _fit_gp(jnp.asarray(X), jnp.asarray((target - y_mean) / y_std))
+    out |= dict(X=X, alpha=np.asarray(alpha), hyper=np.asarray(hyper), y_mean=y_mean, y_std=y_std,
+                loo_rms=_loo_rms(X, (target - y_mean) / y_std, np.asarray(hyper)) * y_std)
+    em = _emulator_from_arrays(out | dict(held_out_rms=np.zeros(Y.shape[1]), held_out_max=0.0, Zt=Zt), spec, angles, source, key, mean, mean_features)
+    err = np.asarray(em(np.asarray(spec.from_unit(Zt)))) - Yt
+    out["held_out_rms"] = np.sqrt(np.mean(err**2, axis=0))
+    out["held_out_max"] = float(np.max(np.abs(err)))
+    out["train_seconds"] = time.perf_counter() - t0
+    return out
+
+
+def _loo_rms(X, Ys, hyper) -> np.ndarray:
+    """Leave-one-out RMS error of each standardised output column (closed form, α_i / (K⁻¹)_ii)."""
+    rms = []
+    for k in range(Ys.shape[1]):
+        Ki = np.linalg.inv(np.asarray(_gram(jnp.asarray(X), jnp.asarray(hyper[k]))))
+        rms.append(np.sqrt(np.mean((Ki @ Ys[:, k] / np.diag(Ki)) ** 2)))
+    return np.asarray(rms)
+
+
+def _emulator_from_arrays(a: dict, spec, angles, source, key, mean=None, mean_features=()) -> Emulator:
+    opt = lambda k: None if mean is None else jnp.asarray(a[k])  # noqa: E731
+    return Emulator(
+        X=jnp.asarray(a["X"]),
+        alpha=jnp.asarray(a["alpha"]),
+        hyper=jnp.asarray(a["hyper"]),
+        y_mean=jnp.asarray(a["y_mean"]),
+        y_std=jnp.asarray(a["y_std"]),
+        spec=spec,
+        angles=angles,
+        held_out_rms=tuple(float(v) for v in np.asarray(a["held_out_rms"])),
+        held_out_max=float(a["held_out_max"]),
+        source=source,
+        key=key,
+        mean_model=None if mean is None else mean.model,
+        mean_cols=() if mean is None else tuple(int(c) for c in mean._cols),
+        mean_vals=() if mean is None else tuple(float(v) for v in mean._vals),
+        mean_features=tuple(int(i) for i in mean_features) if mean is not None else (),
+        mean_coef=opt("mean_coef"),
+        feature_shift=opt("feature_shift"),
+        feature_scale=opt("feature_scale"),
+        held_out_loo_rms=tuple(float(v) for v in np.asarray(a.get("loo_rms", ()))),
+        fit_id=str(a.get("fit_id", "")),
+        n_test=int(np.asarray(a["Zt"]).shape[0]) if "Zt" in a else 0,
+    )
+
+
+def emulator_check(emulator: Emulator, direct: Callable, x: Float[ArrayLike, "n p"]) -> dict:
+    """Compare an emulator with direct evaluations at parameter vectors x (e.g. posterior draws).
+
+    Returns:
+        dict with per-angle RMS and max |difference| and the emulator's own held-out RMS.
+    """
+    x = np.asarray(x, dtype=float)
+    d = np.asarray(emulator(x)) - np.asarray(direct(x))
+    return {"rms": np.sqrt(np.mean(d**2, 0)), "max_abs": np.max(np.abs(d), 0), "error_sd": emulator.error_sd, "n": x.shape[0]}

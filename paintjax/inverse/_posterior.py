@@ -1,0 +1,498 @@
+"""Bayesian posterior of microstructure parameters given five-angle L* (emcee, ArviZ).
+
+Model: L*_meas,j ~ Normal(L*_model,j(θ), s_j²), s_j² = σ_instr² + δ² + e_j², with σ_instr the
+instrument repeatability (0.3 L*), δ the model-discrepancy scale (a free parameter with a
+half-Cauchy(5 L*) prior, or fixed) and e_j the forward model's own error (`error_sd`: zero for
+the analytic model, the held-out RMS for an emulator). Priors: the weak priors of
+`paintjax.inverse._parameters` (log-uniform for tilt shape/scale and roughness σ/τ over their boxes,
+uniform for bounded fractions, half-Cauchy for δ) — none centred on the measured values.
+
+Sampling is in the unconstrained coordinates u (the prior carries the log-Jacobian) with
+`emcee.EnsembleSampler(vectorize=True)`: the whole ensemble is one batched, compiled forward
+call. With `pool=` the ensemble is split into one chunk per pool worker and mapped with
+`pool.map` (an MPI or multiprocessing pool; each worker compiles its own forward). Chains are
+stored in an HDF5 backend so an interrupted run resumes where it stopped; the run stops when
+the chain is longer than `n_tau` (≥ 50) integrated autocorrelation times, the τ estimate has
+settled (relative change < 5 %) and the effective sample size reaches `min_ess` — or at
+`max_steps`, reported as not converged. Results: `PosteriorResult` with ArviZ InferenceData
+(NetCDF, written atomically) and a corner plot.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .._io import atomic_path, atomic_savefig
+from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, check_instrument_sd, check_measured, fit_least_squares
+from ._forward import ForwardModel
+
+
+@dataclasses.dataclass
+class PosteriorResult:
+    """Outcome of `sample_posterior` (physical units throughout).
+
+    Attributes:
+        names: sampled parameter names (plus the derived ``mean_tilt`` = shape × scale in
+            `summary` when both are sampled).
+        samples: (n, p) draws after burn-in and thinning.
+        chain: (steps, walkers, p) full chain.
+        mean, q05, q50, q95, tau_int: per-name summaries (τ in steps).
+        n_eff: effective sample size, walkers × (steps − burn) / max τ.
+        steps, burn, thin, walkers: run geometry; converged: the stopping rule was met.
+        acceptance: mean acceptance fraction; seconds: wall time of this call.
+        L_star_mean, L_star_q05, L_star_q95: posterior predictive band of the model curve.
+        idata: arviz.InferenceData; backend_path: HDF5 file (or None).
+    """
+
+    names: tuple[str, ...]
+    samples: np.ndarray
+    chain: np.ndarray
+    mean: dict
+    q05: dict
+    q50: dict
+    q95: dict
+    tau_int: dict
+    n_eff: float
+    steps: int
+    burn: int
+    thin: int
+    walkers: int
+    converged: bool
+    acceptance: float
+    seconds: float
+    L_star_mean: np.ndarray
+    L_star_q05: np.ndarray
+    L_star_q95: np.ndarray
+    measured: np.ndarray
+    idata: object = None
+    backend_path: str | None = None
+
+    def interval(self, name: str, level: float = 0.9) -> tuple[float, float]:
+        """Equal-tailed credible interval of a parameter (or ``mean_tilt``)."""
+        x = self.draws(name)
+        a = 0.5 * (1.0 - level)
+        return float(np.quantile(x, a)), float(np.quantile(x, 1.0 - a))
+
+    def draws(self, name: str) -> np.ndarray:
+        if name == "mean_tilt":
+            return self.draws("shape") * self.draws("scale")
+        if name not in self.names:
+            raise ValueError(f"unknown parameter {name!r}; sampled: {', '.join(self.names)}")
+        return self.samples[:, self.names.index(name)]
+
+    def to_dict(self) -> dict:
+        return {
+            "mean": dict(self.mean),
+            "q05": dict(self.q05),
+            "q50": dict(self.q50),
+            "q95": dict(self.q95),
+            "tau_int": dict(self.tau_int),
+            "n_eff": self.n_eff,
+            "steps": self.steps,
+            "burn": self.burn,
+            "thin": self.thin,
+            "walkers": self.walkers,
+            "converged": self.converged,
+            "acceptance": self.acceptance,
+            "L_star_mean": self.L_star_mean.tolist(),
+            "L_star_q05": self.L_star_q05.tolist(),
+            "L_star_q95": self.L_star_q95.tolist(),
+            "seconds": self.seconds,
+        }
+
+    def summary(self) -> str:
+        lines = [f"posterior: {self.walkers} walkers × {self.steps} steps (burn {self.burn}, thin {self.thin}); "
+                 f"n_eff ≈ {self.n_eff:.0f}; {'converged' if self.converged else 'NOT converged'}; acceptance {self.acceptance:.2f}"]
+        for n in self.mean:
+            lines.append(f"  {n:>12}: mean {self.mean[n]:.4g}, 90% [{self.q05[n]:.4g}, {self.q95[n]:.4g}], τ_int {self.tau_int.get(n, float('nan')):.0f}")
+        return "\n".join(lines)
+
+
+class LogPosterior:
+    """Vectorised log posterior in unconstrained coordinates: U (W, p) → (W,) (NumPy in/out).
+
+    Picklable (the compiled functions are rebuilt lazily in each process), so it can be mapped
+    over a pool.
+
+    Arguments:
+        forward, measured, free, fixed, bounds, instrument_sd: as in `sample_posterior`.
+    """
+
+    def __init__(self, forward: ForwardModel, measured, free, fixed=None, bounds=None, instrument_sd: float = INSTRUMENT_SD, chunk: int = 16):
+        self.forward = forward
+        self.chunk = int(chunk)
+        self.measured = check_measured(measured, len(forward.aspecular_deg))
+        check_instrument_sd(instrument_sd)
+        self.instrument_sd = float(instrument_sd)
+        self.fixed = dict(fixed or {})
+        self.bounds = dict(bounds or {})
+        self.spec, self.sub, self.restricted = _problem(forward, free, self.fixed, self.bounds)
+        if "discrepancy" in self.fixed:
+            d = float(self.fixed["discrepancy"])
+            if not (0.0 <= d <= 1e3):
+                raise ValueError(f"fixed discrepancy must lie in [0, 1000] L*, got {d!r}")
+        self._fns = None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.spec.names
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_fns"] = None
+        return state
+
+    def _build(self):
+        spec, sub = self.spec, self.sub
+        cols = np.array([spec.index(n) for n in sub.names])
+        d_col = spec.index("discrepancy") if "discrepancy" in spec.names else -1
+        d_fixed = float(self.fixed.get("discrepancy", 0.0))
+        y = jnp.asarray(self.measured)
+        var0 = jnp.asarray(self.instrument_sd**2 + np.asarray(self.forward.error_sd) ** 2)
+
+        @jax.jit
+        def rest(U, L):
+            x = spec.from_unconstrained(U)
+            delta = x[:, d_col] if d_col >= 0 else jnp.full(U.shape[0], d_fixed)
+            var = var0[None, :] + delta[:, None] ** 2
+            ll = -0.5 * jnp.sum((L - y) ** 2 / var + jnp.log(2.0 * jnp.pi * var), axis=-1)
+            lp = ll + spec.log_prior_unconstrained(U)
+            return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
+
+        fwd = batched_forward(self.restricted, sub, self.chunk)
+        self._fns = (cols, fwd, rest)
+
+    def model_lightness(self, U) -> np.ndarray:
+        """L* of the forward model at unconstrained points U (W, p)."""
+        if self._fns is None:
+            self._build()
+        cols, fwd, _ = self._fns
+        U = np.atleast_2d(np.asarray(U, dtype=float))
+        return fwd(U[:, cols])
+
+    def __call__(self, U) -> np.ndarray:
+        if self._fns is None:
+            self._build()
+        cols, fwd, rest = self._fns
+        U = np.atleast_2d(np.asarray(U, dtype=float))
+        L = fwd(U[:, cols])
+        return np.asarray(rest(jnp.asarray(U), jnp.asarray(L)), dtype=float)
+
+
+class _PooledLogPosterior:
+    """Split a batch into one chunk per pool worker and map the log posterior over them."""
+
+    def __init__(self, log_posterior: LogPosterior, pool, n_chunks: int):
+        self.log_posterior, self.pool, self.n_chunks = log_posterior, pool, max(1, int(n_chunks))
+
+    def __call__(self, U):
+        parts = [p for p in np.array_split(np.asarray(U), self.n_chunks) if len(p)]
+        return np.concatenate(list(self.pool.map(self.log_posterior, parts)))
+
+
+def _pool_size(pool) -> int:
+    for attr in ("_processes", "size", "_max_workers"):
+        v = getattr(pool, attr, None)
+        if isinstance(v, int) and v > 0:
+            return v
+    return 2
+
+
+def _meta(lp: LogPosterior, walkers: int) -> str:
+    return json.dumps({"names": lp.names, "measured": lp.measured.tolist(), "forward": lp.forward.fingerprint(),
+                       "fixed": lp.restricted.fixed, "fixed_discrepancy": lp.fixed.get("discrepancy"),
+                       "bounds": lp.spec.fingerprint(), "instrument_sd": lp.instrument_sd, "walkers": walkers}, sort_keys=True)
+
+
+def sample_posterior(
+    forward: ForwardModel,
+    measured,
+    *,
+    free: Sequence[str] | None = None,
+    fixed: Mapping[str, float] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    instrument_sd: float = INSTRUMENT_SD,
+    walkers: int = 32,
+    max_steps: int = 20000,
+    min_steps: int = 500,
+    check_every: int = 250,
+    n_tau: float = 50.0,
+    min_ess: float = 1000.0,
+    init: FitResult | Mapping[str, float] | None = None,
+    seed: int = 0,
+    backend_path: str | os.PathLike | None = None,
+    resume: bool = True,
+    progress: bool = True,
+    pool=None,
+    inference_data: bool = True,
+) -> PosteriorResult:
+    """Sample the posterior of the free parameters with emcee (vectorised, resumable).
+
+    Arguments:
+        forward: a `ForwardModel` (analytic, emulator; the tracer through an emulator).
+        measured: L* per angle.
+        free: sampled parameters (default: the forward's inputs except ``diffuse``, plus
+            ``discrepancy``).
+        fixed: values of the other forward inputs; ``discrepancy`` may be fixed too (e.g. 0).
+        bounds: `{name: (lower, upper)}` overrides of the registered bounds.
+        instrument_sd: instrument repeatability [L*].
+        walkers: ensemble size (≥ 2·p, even).
+        max_steps, min_steps, check_every: chain-length limits and convergence-check period.
+        n_tau: required chain length in integrated autocorrelation times (≥ 50 by default).
+        min_ess: required effective sample size.
+        init: where to start the walkers (a `FitResult` or values); default: a least-squares fit.
+        seed: seed of the initial ball and of emcee's generator.
+        backend_path: HDF5 file for the chain (None: in memory, no resume).
+        resume: continue a compatible chain found in `backend_path` (else it is restarted).
+        progress: tqdm progress bar.
+        pool: optional pool with a `map` method (multiprocessing, MPI); the ensemble is split
+            over its workers.
+        inference_data: build the ArviZ InferenceData (`idata`; skip for speed in bulk studies).
+
+    Returns:
+        A `PosteriorResult`.
+    """
+    import arviz as az
+    import emcee
+
+    t0 = time.perf_counter()
+    if free is None:
+        free = tuple(n for n in forward.parameter_names if n not in (fixed or {}) and n != "diffuse")
+        if "discrepancy" not in (fixed or {}):
+            free = free + ("discrepancy",)
+    walkers = int(walkers)
+    from ._fit import CHUNK
+
+    # Same chunk as least squares (one compiled forward) unless half an ensemble is larger.
+    lp = LogPosterior(forward, measured, free, fixed, bounds, instrument_sd, chunk=max(CHUNK, walkers // 2))
+    p = len(lp.names)
+    if walkers < 2 * p or walkers % 2:
+        raise ValueError(f"walkers must be even and >= 2 × {p} parameters = {2 * p}, got {walkers}")
+    if n_tau < 1 or min_steps < 1 or max_steps < min_steps or check_every < 1:
+        raise ValueError(f"need n_tau >= 1, 1 <= min_steps <= max_steps, check_every >= 1; got {n_tau}, {min_steps}, {max_steps}, {check_every}")
+    fn = lp if pool is None else _PooledLogPosterior(lp, pool, _pool_size(pool))
+
+    backend = None
+    meta = _meta(lp, walkers)
+    state = None
+    if backend_path is not None:
+        backend_path = Path(backend_path)
+        backend_path.parent.mkdir(parents=True, exist_ok=True)
+        backend = emcee.backends.HDFBackend(str(backend_path))
+        old = _read_meta(backend_path) if backend_path.exists() else None
+        try:
+            stored = backend.iteration if backend_path.exists() else 0
+        except OSError as err:  # e.g. a run killed while emcee wrote in place
+            raise ValueError(f"backend_path {str(backend_path)!r} is not a readable emcee chain ({err}); move or delete it to "
+                             "start a new chain") from None
+        if resume and old == meta and stored > 0:
+            state = None  # continue from the stored last sample (and random state)
+        else:
+            backend.reset(walkers, p)
+            _write_meta(backend_path, meta)
+    sampler = emcee.EnsembleSampler(walkers, p, fn, vectorize=True, backend=backend)
+    if backend is None or backend.iteration == 0:
+        rng = np.random.default_rng(seed)
+        u_start = _initial_ball(lp, init, walkers, rng, seed)
+        sampler.random_state = np.random.RandomState(seed).get_state()
+        state = u_start
+
+    converged, old_tau = False, None
+    while sampler.iteration < max_steps:
+        n = min(check_every, max_steps - sampler.iteration)
+        sampler.run_mcmc(state, n, progress=progress, skip_initial_state_check=True)
+        state = None
+        it = sampler.iteration
+        tau = sampler.get_autocorr_time(tol=0)
+        ess = walkers * max(it - int(2 * np.max(tau)), 0) / np.max(tau)
+        settled = old_tau is not None and np.all(np.abs(old_tau - tau) < 0.05 * tau)
+        old_tau = tau
+        if it >= min_steps and np.all(n_tau * tau < it) and settled and ess >= min_ess:
+            converged = True
+            break
+    return _result(sampler, lp, converged, t0, backend_path, inference_data)
+
+
+def _initial_ball(lp: LogPosterior, init, walkers: int, rng, seed: int) -> np.ndarray:
+    spec = lp.spec
+    if init is None:
+        fr = fit_least_squares(lp.forward, lp.measured, free=[n for n in spec.names], fixed={k: v for k, v in lp.fixed.items()},
+                               bounds=lp.bounds, instrument_sd=lp.instrument_sd, seed=seed)
+        values = dict(fr.values)
+    elif isinstance(init, FitResult):
+        values = dict(init.values)
+    else:  # a user's dict: names and ranges checked, not silently mended
+        values = dict(init)
+        unknown = sorted(set(values) - set(spec.names) - set(lp.fixed))
+        if unknown:
+            raise ValueError(f"init names {unknown} are not parameters of this posterior (free: {', '.join(spec.names)})")
+        for prm in spec.parameters:
+            if prm.name in values:
+                v = float(values[prm.name])
+                if not (math.isfinite(v) and prm.lower <= v <= prm.upper):
+                    raise ValueError(f"init value of {prm.name} must lie in [{prm.lower:g}, {prm.upper:g}] {prm.unit}".rstrip()
+                                     + f", got {values[prm.name]!r}")
+    x = []
+    for prm in spec.parameters:
+        v = float(values.get(prm.name, prm.default))
+        if prm.name == "discrepancy":
+            v = max(v, 0.5)
+        span = prm.upper - prm.lower  # only a value on a bound is nudged inside (the transform maps it to ±inf)
+        x.append(float(np.clip(v, prm.lower + 1e-3 * span, prm.upper - 1e-3 * span)))
+    u0 = np.asarray(spec.to_unconstrained(np.array(x)))
+    U = u0[None, :] + 1e-2 * rng.standard_normal((walkers, len(spec)))
+    # Walkers must start with finite log posterior.
+    bad = ~np.isfinite(lp(U))
+    if bad.any():
+        U[bad] = u0
+    return U
+
+
+def _write_meta(path: Path, meta: str) -> None:
+    import h5py
+
+    with h5py.File(path, "a") as f:
+        f["mcmc"].attrs["paintjax_meta"] = meta
+
+
+def _read_meta(path: Path):
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as f:
+            return f["mcmc"].attrs.get("paintjax_meta")
+    except (OSError, KeyError):
+        return None
+
+
+def _result(sampler, lp: LogPosterior, converged: bool, t0: float, backend_path, inference_data: bool) -> PosteriorResult:
+    import arviz as az
+
+    spec = lp.spec
+    it = sampler.iteration
+    tau = sampler.get_autocorr_time(tol=0)
+    tmax = float(np.max(tau)) if np.all(np.isfinite(tau)) else float(it)
+    burn = min(int(2 * tmax), it // 2)
+    thin = max(1, int(0.5 * np.min(tau))) if np.all(np.isfinite(tau)) else 1
+    chain_u = sampler.get_chain()
+    chain = np.asarray(spec.from_unconstrained(chain_u))
+    flat_u = sampler.get_chain(discard=burn, thin=thin, flat=True)
+    flat = np.asarray(spec.from_unconstrained(flat_u))
+    names = spec.names
+    draws = {n: flat[:, i] for i, n in enumerate(names)}
+    if "shape" in names and "scale" in names:
+        draws["mean_tilt"] = draws["shape"] * draws["scale"]
+    q = {k: np.quantile(v, [0.05, 0.5, 0.95]) for k, v in draws.items()}
+    # Posterior predictive band of the model curve (≤ 400 draws).
+    pick = np.linspace(0, flat_u.shape[0] - 1, min(400, flat_u.shape[0])).astype(int)
+    Lm = lp.model_lightness(flat_u[pick])
+    kept = chain[burn::thin]
+    posterior = {n: np.swapaxes(kept[:, :, i], 0, 1) for i, n in enumerate(names)}
+    if "mean_tilt" in draws:
+        posterior["mean_tilt"] = posterior["shape"] * posterior["scale"]
+    lps = np.swapaxes(sampler.get_log_prob()[burn::thin], 0, 1)
+    idata = None if not inference_data else az.from_dict(
+        posterior=posterior,
+        sample_stats={"lp": lps},
+        observed_data={"L_star": lp.measured},
+        constant_data={"aspecular_deg": np.asarray(lp.forward.aspecular_deg, dtype=float)},
+        attrs={"forward": lp.forward.fingerprint(), "instrument_sd": lp.instrument_sd,
+               "fixed": json.dumps(lp.restricted.fixed), "tau_int": json.dumps(dict(zip(names, map(float, tau)))),
+               "converged": int(converged), "note": "walkers are stored as ArviZ chains (emcee ensemble)"},
+    )
+    n_eff = float(sampler.nwalkers * max(it - burn, 0) / tmax) if tmax > 0 else 0.0
+    return PosteriorResult(
+        names=names,
+        samples=flat,
+        chain=chain,
+        mean={k: float(np.mean(v)) for k, v in draws.items()},
+        q05={k: float(v[0]) for k, v in q.items()},
+        q50={k: float(v[1]) for k, v in q.items()},
+        q95={k: float(v[2]) for k, v in q.items()},
+        tau_int={n: float(t) for n, t in zip(names, tau)},
+        n_eff=n_eff,
+        steps=int(it),
+        burn=burn,
+        thin=thin,
+        walkers=int(sampler.nwalkers),
+        converged=bool(converged),
+        acceptance=float(np.mean(sampler.acceptance_fraction)),
+        seconds=time.perf_counter() - t0,
+        L_star_mean=Lm.mean(0),
+        L_star_q05=np.quantile(Lm, 0.05, axis=0),
+        L_star_q95=np.quantile(Lm, 0.95, axis=0),
+        measured=lp.measured,
+        idata=idata,
+        backend_path=None if backend_path is None else str(backend_path),
+    )
+
+
+def save_netcdf(idata, path: str | os.PathLike) -> Path:
+    """Write ArviZ InferenceData to NetCDF atomically (temporary file in the same folder + rename)."""
+    with atomic_path(path) as tmp:
+        idata.to_netcdf(str(tmp))
+    return Path(path)
+
+
+def corner_plot(result: PosteriorResult, *, names: Sequence[str] | None = None, reference: Mapping[str, float] | None = None,
+                path: str | os.PathLike | None = None, title: str | None = None):
+    """Corner plot (matplotlib only): 1-D histograms on the diagonal, 2-D histograms below.
+
+    Arguments:
+        result: a `PosteriorResult`.
+        names: parameters to show (default: all sampled, plus ``mean_tilt``).
+        reference: optional values to mark (e.g. independently measured ones), by name.
+        path: if given, the PNG is written there atomically.
+        title: figure title.
+
+    Returns:
+        The matplotlib figure.
+    """
+    import matplotlib.pyplot as plt
+
+    names = list(names or (list(result.names) + (["mean_tilt"] if "shape" in result.names and "scale" in result.names else [])))
+    k = len(names)
+    fig, axes = plt.subplots(k, k, figsize=(1.9 * k + 1, 1.9 * k + 1), squeeze=False)
+    data = {n: result.draws(n) for n in names}
+    reference = dict(reference or {})
+    for i, ni in enumerate(names):
+        for j, nj in enumerate(names):
+            ax = axes[i, j]
+            if j > i:
+                ax.axis("off")
+                continue
+            if i == j:
+                ax.hist(data[ni], bins=40, color="0.4", histtype="stepfilled", alpha=0.7)
+                for qv in (result.q05.get(ni), result.q95.get(ni)):
+                    if qv is not None:
+                        ax.axvline(qv, color="k", ls=":", lw=0.8)
+                if ni in reference:
+                    ax.axvline(reference[ni], color="C3", lw=1.2)
+                ax.set_yticks([])
+            else:
+                ax.hist2d(data[nj], data[ni], bins=35, cmap="Greys")
+                if nj in reference and ni in reference:
+                    ax.plot(reference[nj], reference[ni], "o", color="C3", ms=4)
+            if i == k - 1:
+                ax.set_xlabel(nj)
+            else:
+                ax.set_xticklabels([])
+            if j == 0 and i > 0:
+                ax.set_ylabel(ni)
+            elif j > 0:
+                ax.set_yticklabels([])
+    if title:
+        fig.suptitle(title)
+    if path is not None:
+        atomic_savefig(fig, path)
+    return fig

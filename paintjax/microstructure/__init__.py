@@ -1,0 +1,14 @@
+"""Platelet microstructure: size and tilt laws, non-overlapping platelet arrays, the uniform grid.
+
+In: a sample's statistics (PVC, size law, gamma tilt law, film thickness) and a seed. Out: a
+`PlateletArray` of square aluminium prisms in a laterally periodic basecoat tile, its statistics
+(overlaps, realised tilt law) and the fixed-capacity `UniformGrid` the tracer walks.
+"""
+
+from ._array import MAX_PVC, GenerationLog, PlateletArray, boolean_platelet_array, generate_platelet_array, platelet_array_for_sample
+from ._grid import UniformGrid, build_grid, candidate_pairs, check_grid_matches
+from ._overlap import midplane_overlap, obb_overlap, periodic_overlap, tri_tri_intersect
+from ._plots import plot_cross_section, plot_tilt_histogram
+from ._sizes import LogNormalSizes, PolynomialCDFSizes, SizeDistribution, TabulatedCDFSizes, default_sizes
+from ._statistics import array_statistics, cross_section, overlapping_pairs, tilt_ks
+from ._tilt import GammaTilt

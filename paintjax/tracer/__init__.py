@@ -1,0 +1,15 @@
+"""The ray-batch Monte Carlo tracer: a platelet basecoat under a clearcoat, seen by the instrument.
+
+In: a `PlateletArray` and its `UniformGrid`, a platelet BRDF, a `Geometry`, the coat. Out: a
+`TraceResult` (reflectance factors, L* with batch-means standard errors, the energy ledger),
+optionally combined over wavelengths as the instrument does; and a deterministic single-scatter
+reference of one tile to check it against.
+"""
+
+from ._options import LEDGER_KEYS, MAX_CREATED_ENERGY, EnergyCreationError, TracerOptions
+from ._plain import plain_trace_seconds
+from ._result import TraceResult
+from ._scene import build_scene
+from ._spectral import SPECTRAL_NODES_NM, combine_spectral, lab_from_xyz, spectral_node_weights
+from ._tile_single_scatter import tile_mirror_single_scatter
+from ._trace import check_ray_count, lightness_with_se, trace

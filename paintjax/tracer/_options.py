@@ -1,0 +1,90 @@
+"""Settings of a tracer run (`TracerOptions`), its energy ledger's keys and the energy-creation refusal."""
+
+from __future__ import annotations
+
+import equinox as eqx
+
+#: Keys of the energy ledger, in order.
+LEDGER_KEYS = ("top_reflection", "exited", "absorbed_platelets", "absorbed_primer", "roulette", "caps")
+_BIG = 1e30
+_MAX_GROWTH = 4.0  # adaptive rounds grow the rays at most this factor
+
+#: Largest net energy (fraction of the incident flux) the platelets may create, i.e. negative
+#: platelet absorption in the ledger, before `trace` refuses the result (`EnergyCreationError`).
+MAX_CREATED_ENERGY = 0.01
+
+
+class EnergyCreationError(ValueError):
+    """The platelet BRDF returned more light than it received (its albedo exceeds 1 somewhere)."""
+
+
+class TracerOptions(eqx.Module):
+    """Performance and estimator settings of `trace` (all static).
+
+    Arguments:
+        lanes: rays in flight per device.
+        steps_per_call: steps per jit call (a step = one event or `cells_per_step` cells).
+        cells_per_step: grid cells a ray may cross per step (≥ 2). Shadow rays get as many cells
+            as a ray toward any detector through a flat coat can cross in the basecoat
+            (`_shadow_cell_bound`); a wavy coat's steeper ones resume where they stopped.
+        batches: groups of lanes for the batch-means standard errors (≥ 8).
+        roulette_weight: Russian roulette below this weight (0 disables roulette).
+        max_steps: steps after which a ray is capped (its weight goes to the ledger's caps).
+        randomize_azimuth: rotate the instrument by a random azimuth per ray.
+        shadow_roulette: NEE contributions (reflectance-factor units per ray) below this are kept
+            with probability value/threshold and raised to it (unbiased; 0 disables).
+        shadow_buffer: shadow rays traced per pass, as a fraction of lanes × detectors; active
+            shadow rays are compacted into this buffer (more passes run when it overflows).
+        edges: "scatter" (default): a ray entering a platelet through a side face is scattered by
+            the platelet BRDF about that face's normal (aluminium side walls); "absorb": side
+            faces absorb (dark, broken edges; also the thin-platelet limit of the analytic model).
+        mis: with finite detector apertures and a flat coat, combine NEE with the BRDF-sampled
+            exits into each aperture by multiple importance sampling (balance heuristic);
+            False: NEE alone (the histogram is always reported on its own as well).
+        reverse_share: bidirectional MIS where both ends are delta directions (collimated beam,
+            point detectors, flat coat, BRDF without a delta part): per detector a reverse pass
+            (reciprocity: the detector is the source, the source the only detector) traces this
+            many rays per forward ray, and the NEE of both passes is weighted by the balance
+            heuristic over their path densities. 0: the forward tracer alone. It relies on
+            reciprocity: of the platelet BRDF (all of paintjax's are) and of the scene, which
+            overlapping boxes break (a ray starting inside a box passes through it, one arriving
+            from outside does not), so arrays should be overlap-free (`array_statistics`).
+        float64: trace in float64 when x64 is enabled (default float32 geometry, which is ample
+            for µm-scale boxes in a sub-mm tile and twice as fast; tallies are float64 under x64).
+
+    `batches`, `float64`, `mis` and `reverse_share` are read on the host only (scene flags, dtypes,
+    summaries): the compiled kernel is cached without them (`_kernel_options`), so it must not read them.
+    """
+
+    lanes: int = eqx.field(static=True, default=2048)
+    steps_per_call: int = eqx.field(static=True, default=16)
+    cells_per_step: int = eqx.field(static=True, default=3)
+    batches: int = eqx.field(static=True, default=32)
+    roulette_weight: float = eqx.field(static=True, default=0.05)
+    max_steps: int = eqx.field(static=True, default=1000)
+    randomize_azimuth: bool = eqx.field(static=True, default=True)
+    float64: bool = eqx.field(static=True, default=False)
+    shadow_roulette: float = eqx.field(static=True, default=0.02)
+    shadow_buffer: float = eqx.field(static=True, default=0.25)
+    edges: str = eqx.field(static=True, default="scatter")
+    mis: bool = eqx.field(static=True, default=True)
+    reverse_share: float = eqx.field(static=True, default=0.5)
+
+    def __check_init__(self):
+        for name, v, lo in (("lanes", self.lanes, 1), ("steps_per_call", self.steps_per_call, 1),
+                            ("cells_per_step", self.cells_per_step, 2), ("batches", self.batches, 8),
+                            ("max_steps", self.max_steps, 1)):
+            if int(v) < lo:
+                raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
+        if self.lanes % self.batches:
+            raise ValueError(f"lanes ({self.lanes}) must be a multiple of batches ({self.batches})")
+        if not (0.0 <= self.shadow_roulette < 10.0):
+            raise ValueError(f"shadow_roulette must lie in [0, 10), got {self.shadow_roulette!r}")
+        if not (0.0 < self.shadow_buffer <= 1.0):
+            raise ValueError(f"shadow_buffer must lie in (0, 1], got {self.shadow_buffer!r}")
+        if self.edges not in ("scatter", "absorb"):
+            raise ValueError(f"edges must be 'scatter' or 'absorb', got {self.edges!r}")
+        if not (0.0 <= self.reverse_share <= 16.0):
+            raise ValueError(f"reverse_share must lie in [0, 16], got {self.reverse_share!r}")
+        if not (0.0 <= self.roulette_weight < 1.0):
+            raise ValueError(f"roulette_weight must lie in [0, 1), got {self.roulette_weight!r}")
