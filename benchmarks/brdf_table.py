@@ -21,8 +21,8 @@ import numpy as np  # noqa: E402
 import scipy.linalg  # noqa: E402
 
 from paintjax import TabulatedBRDF, platelet_table_arrays, synthesize_profiles  # noqa: E402
-from paintjax.brdf._in_plane import DEFAULT_INCIDENCE_DEG, DEFAULT_NUM_PROFILES  # noqa: E402
-from paintjax.wave._solver import default_spacing, max_incidence_deg, solve_profiles  # noqa: E402
+from paintjax.brdf import DEFAULT_INCIDENCE_DEG, DEFAULT_NUM_PROFILES  # noqa: E402
+from paintjax.wave import default_spacing, max_incidence_deg, solve_profiles  # noqa: E402
 
 
 def timed(fn):

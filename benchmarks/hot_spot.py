@@ -23,7 +23,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from paintjax import GammaTilt, HotSpot, MirrorBRDF, ma98_geometry  # noqa: E402
-from paintjax.instrument._single_scatter import microfacet_reflectance_factor  # noqa: E402
+from paintjax.instrument import microfacet_reflectance_factor  # noqa: E402
 
 
 def best_of(fn, *args, repeats: int = 3) -> float:

@@ -26,8 +26,13 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from paintjax import AnalyticForward, fit_least_squares, load_sample, sample_posterior  # noqa: E402
-from paintjax._io import atomic_write_json  # noqa: E402
+from paintjax import (  # noqa: E402
+    AnalyticForward,
+    atomic_write_json,  # noqa: E402
+    fit_least_squares,
+    load_sample,
+    sample_posterior,
+)
 
 FREE = ("shape", "scale", "sigma", "tau", "diffuse")
 

@@ -38,9 +38,8 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
+from paintjax import build_grid, load_sample, ma98_geometry, platelet_brdf, sample_array  # noqa: E402
 from paintjax.tracer import TracerOptions, build_scene, plain_trace_seconds, trace  # noqa: E402
-from paintjax import build_grid, load_sample, ma98_geometry  # noqa: E402
-from paintjax.cli._simulate import platelet_brdf, sample_array  # noqa: E402
 
 GOAL_S = 60.0
 
@@ -74,8 +73,7 @@ def main() -> int:
     t_array = time.perf_counter() - t0
     brdf = platelet_brdf("wave", sigma=s.sigma.value, tau=s.tau.value, n=s.binder_index)
     if args.coherent_width_factor != 1.0:
-        from paintjax.brdf._analytic import coherent_lobe_width
-        from paintjax.brdf._table import platelet_brdf_table
+        from paintjax.brdf import coherent_lobe_width, platelet_brdf_table
 
         width = args.coherent_width_factor * coherent_lobe_width(0.5, s.binder_index, 16.0)
         brdf = platelet_brdf_table(s.sigma.value, s.tau.value, n_medium=s.binder_index, coherent_width=width)

@@ -30,10 +30,8 @@ import numpy as np  # noqa: E402
 import scipy.linalg as sl  # noqa: E402
 import scipy.special as sp  # noqa: E402
 
-from paintjax._io import atomic_write_json  # noqa: E402
-from paintjax.wave._profiles import synthesize_profiles  # noqa: E402
-from paintjax.wave._solver import (  # noqa: E402
-    _solve_batch,
+from paintjax import atomic_write_json  # noqa: E402
+from paintjax.wave import (  # noqa: E402  # noqa: E402
     band_width,
     channels,
     default_spacing,
@@ -41,6 +39,8 @@ from paintjax.wave._solver import (  # noqa: E402
     incident_power,
     layer_operators,
     quadrature_points,
+    solve_batch,
+    synthesize_profiles,
 )
 
 LAM, N_MED, SIGMA, TAU, LENGTH, COUNT = 0.5, 1.5, 0.051, 0.64, 20.0, 10
@@ -71,7 +71,7 @@ def ours(prof, batch_size):
     args = (prof.h, prof.dh, prof.d2h, prof.x, inc, ang, etas, K, prof.spacing, g)
     kw = dict(kinds=tuple(c[0] for c in chans), band=band_width(K, prof.spacing), batch_size=batch_size)
     t0 = time.perf_counter()
-    compiled = _solve_batch.lower(*args, **kw).compile()
+    compiled = solve_batch.lower(*args, **kw).compile()
     t_compile = time.perf_counter() - t0
     mem = compiled.memory_analysis()
     run = lambda: jax.block_until_ready(compiled(*args))  # noqa: E731
@@ -141,7 +141,7 @@ def baseline_one(x, h, dh, d2h, dx, inc_rad, per_incidence=True):
 
 def _resampled(fine, n):
     """The same periodic surface as `fine` (one profile) on a centred grid of n points (trig series)."""
-    from paintjax.wave._profiles import Profiles, grid
+    from paintjax.wave import Profiles, grid
 
     nf = fine.x.shape[0]
     length = nf * fine.spacing
@@ -161,7 +161,7 @@ def _resampled(fine, n):
 def accuracy_sweep():
     """Lobe error vs points per wavelength on one fixed 10 µm surface (Al, TE and TM, 0° and 30°),
     against our solution at 48 ppw: ours and the scipy baseline (first-order self terms)."""
-    from paintjax.wave._solver import solve_profiles
+    from paintjax.wave import solve_profiles
 
     fine = synthesize_profiles(jax.random.PRNGKey(3), SIGMA, TAU, length_um=10.0, spacing_um=default_spacing(LAM, N_MED, 48), num_profiles=1)
     inc = np.array([0.0, 30.0])

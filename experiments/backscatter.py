@@ -19,10 +19,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from paintjax._io import atomic_savefig, atomic_savez, atomic_write_json  # noqa: E402
-from paintjax.wave._closed_forms import kirchhoff_sigma  # noqa: E402
-from paintjax.wave._profiles import synthesize_profiles  # noqa: E402
-from paintjax.wave._solver import default_spacing, solve_profiles  # noqa: E402
+from paintjax import atomic_savefig, atomic_savez, atomic_write_json  # noqa: E402
+from paintjax.wave import (  # noqa: E402
+    default_spacing,
+    kirchhoff_sigma,  # noqa: E402
+    solve_profiles,
+    synthesize_profiles,  # noqa: E402
+)
 
 OUT = Path(__file__).parent / "output" / "backscatter"
 LAM0, N_MED = 0.5, 1.5

@@ -19,11 +19,19 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from paintjax._cache import enable_compilation_cache  # noqa: E402
-from paintjax._io import atomic_write_json  # noqa: E402
-from paintjax.inverse._emulator import Emulator, fit_emulator  # noqa: E402
-from paintjax.inverse._registry import make_forward  # noqa: E402
-from paintjax.inverse._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, direct_tracer, tracer_info  # noqa: E402
+from paintjax import (
+    atomic_write_json,  # noqa: E402
+    enable_compilation_cache,  # noqa: E402
+)
+from paintjax.inverse import (  # noqa: E402
+    TRACER_BOX,
+    TRACER_PARAMETERS,
+    Emulator,
+    direct_tracer,
+    fit_emulator,
+    make_forward,  # noqa: E402
+    tracer_info,
+)
 
 OUT = Path(__file__).parent / "output" / "tracer_forward"
 
@@ -40,7 +48,7 @@ def main():
            "error_sd": np.asarray(em.error_sd).tolist(), "key": em.key} | info
     import numpy as _np
 
-    from paintjax._cache import default_cache_dir
+    from paintjax import default_cache_dir
 
     path = default_cache_dir() / "emulators" / f"emulator-{em.key}.npz"
     with _np.load(path) as d:

@@ -44,9 +44,8 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 from scipy.stats import binom  # noqa: E402
 
-from paintjax import AnalyticForward, fit_least_squares, make_spec, sample_posterior  # noqa: E402
-from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
-from paintjax.inverse._posterior import LogPosterior  # noqa: E402
+from paintjax import AnalyticForward, atomic_savefig, atomic_write_json, fit_least_squares, make_spec, sample_posterior  # noqa: E402
+from paintjax.inverse import LogPosterior  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "coverage"
 OUT_TRACER = Path(__file__).parent / "output" / "coverage_tracer"
@@ -61,8 +60,7 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
     tracer = forward_name == "tracer-emulator"
     if tracer:
-        from paintjax.inverse._registry import make_forward
-        from paintjax.inverse._tracer_forward import TRACER_BOX, direct_tracer, tracer_info
+        from paintjax.inverse import TRACER_BOX, direct_tracer, make_forward, tracer_info
 
         t_build = time.perf_counter()
         forward = make_forward("tracer-emulator", ALL, **(forward_options or {}))

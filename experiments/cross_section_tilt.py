@@ -34,10 +34,13 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 from scipy import optimize, stats  # noqa: E402
 
-from paintjax import load_sample  # noqa: E402
-from paintjax._cache import enable_compilation_cache  # noqa: E402
-from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
-from paintjax.cli._simulate import simulate  # noqa: E402
+from paintjax import (  # noqa: E402
+    atomic_savefig,
+    atomic_write_json,
+    enable_compilation_cache,  # noqa: E402
+    load_sample,  # noqa: E402
+    simulate,  # noqa: E402
+)
 
 OUT = Path(__file__).parent / "output" / "cross_section_tilt"
 GRID_DEG = np.linspace(0.0, 40.0, 401)

@@ -37,8 +37,16 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from paintjax import AnalyticForward, corner_plot, fit_least_squares, load_sample, sample_posterior, save_netcdf  # noqa: E402
-from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
+from paintjax import (  # noqa: E402
+    AnalyticForward,
+    atomic_savefig,
+    atomic_write_json,
+    corner_plot,
+    fit_least_squares,
+    load_sample,
+    sample_posterior,
+    save_netcdf,
+)
 
 OUT = Path(__file__).parent / "output" / "fit_silver"
 OUT_TRACER = Path(__file__).parent / "output" / "fit_silver_tracer"
@@ -137,8 +145,7 @@ def run_one(forward, name: str, variant: str, *, walkers: int, max_steps: int, m
 
 def emulator_vs_tracer(forward, post, n: int, seed: int) -> dict:
     """Emulator vs direct tracer runs (common random numbers, what the emulator emulates) at n posterior draws."""
-    from paintjax.inverse._emulator import emulator_check
-    from paintjax.inverse._tracer_forward import direct_tracer
+    from paintjax.inverse import direct_tracer, emulator_check
 
     rng = np.random.default_rng(seed)
     cols = [post.names.index(k) for k in forward.parameter_names]
@@ -196,8 +203,7 @@ def main(argv=None, forward_options: dict | None = None) -> dict:
     jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
     build = None
     if tracer:
-        from paintjax.inverse._registry import make_forward
-        from paintjax.inverse._tracer_forward import tracer_info
+        from paintjax.inverse import make_forward, tracer_info
 
         t0 = time.perf_counter()
         forward = make_forward("tracer-emulator", VARIANTS["tracer"], **(forward_options or {}))

@@ -41,8 +41,16 @@ import numpy as np  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from paintjax import BeckmannBRDF, HeTorranceBRDF, TabulatedBRDF, kirchhoff_lobes, platelet_table_arrays  # noqa: E402
-from paintjax._io import atomic_savefig, atomic_savez, atomic_write_json  # noqa: E402
+from paintjax import (  # noqa: E402
+    BeckmannBRDF,
+    HeTorranceBRDF,
+    TabulatedBRDF,
+    atomic_savefig,
+    atomic_savez,
+    atomic_write_json,
+    kirchhoff_lobes,
+    platelet_table_arrays,
+)
 
 OUT = Path(__file__).parent / "output" / "he_torrance_comparison"
 SIGMA, TAU, WAVELENGTH, N, INCIDENCE = 0.28, 1.77, 0.5, 1.0, 10.0

@@ -34,13 +34,23 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from paintjax import HotSpot, boolean_platelet_array, build_grid, fresnel_dielectric, ma98_geometry, trace  # noqa: E402
-from paintjax._cache import enable_compilation_cache  # noqa: E402
-from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
-from paintjax.brdf._analytic import BeckmannBRDF  # noqa: E402
-from paintjax.instrument._geometry import refract_into_coat  # noqa: E402
-from paintjax.instrument._hot_spot import boolean_escape_monte_carlo  # noqa: E402
-from paintjax.tracer._options import TracerOptions  # noqa: E402
+from paintjax import (  # noqa: E402
+    HotSpot,
+    atomic_savefig,
+    atomic_write_json,
+    boolean_platelet_array,
+    build_grid,
+    enable_compilation_cache,  # noqa: E402
+    fresnel_dielectric,
+    ma98_geometry,
+    trace,
+)
+from paintjax.brdf import BeckmannBRDF  # noqa: E402
+from paintjax.instrument import (
+    boolean_escape_monte_carlo,  # noqa: E402
+    refract_into_coat,  # noqa: E402
+)
+from paintjax.tracer import TracerOptions  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "hot_spot"
 N, THICKNESS, MEAN_FREE_DEPTH, FILM = 1.5, 0.02, 5.0, 60.0

@@ -54,14 +54,21 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from paintjax import GammaTilt, HotSpot, load_sample, ma98_geometry, reflectance_factor_to_lightness  # noqa: E402
-from paintjax._cache import enable_compilation_cache  # noqa: E402
-from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
-from paintjax.brdf._analytic import BeckmannBRDF  # noqa: E402
-from paintjax.cli._common import array_overrides  # noqa: E402
-from paintjax.cli._simulate import simulate  # noqa: E402
-from paintjax.instrument._single_scatter import microfacet_reflectance_factor  # noqa: E402
-from paintjax.tracer._options import TracerOptions  # noqa: E402
+from paintjax import (  # noqa: E402
+    GammaTilt,
+    HotSpot,
+    array_overrides,  # noqa: E402
+    atomic_savefig,
+    atomic_write_json,
+    enable_compilation_cache,  # noqa: E402
+    load_sample,
+    ma98_geometry,
+    reflectance_factor_to_lightness,
+    simulate,  # noqa: E402
+)
+from paintjax.brdf import BeckmannBRDF  # noqa: E402
+from paintjax.instrument import microfacet_reflectance_factor  # noqa: E402
+from paintjax.tracer import TracerOptions  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "hybrid_sensitivity"
 

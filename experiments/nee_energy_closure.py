@@ -24,10 +24,16 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from paintjax import LambertianBRDF, boolean_platelet_array, build_grid, hemisphere_quadrature, trace  # noqa: E402
-from paintjax._cache import enable_compilation_cache  # noqa: E402
-from paintjax._io import atomic_write_json  # noqa: E402
-from paintjax.tracer._options import TracerOptions  # noqa: E402
+from paintjax import (  # noqa: E402
+    LambertianBRDF,
+    atomic_write_json,  # noqa: E402
+    boolean_platelet_array,
+    build_grid,
+    enable_compilation_cache,  # noqa: E402
+    hemisphere_quadrature,
+    trace,
+)
+from paintjax.tracer import TracerOptions  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "nee_energy_closure"
 N = 1.5

@@ -24,9 +24,8 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from paintjax import GammaTilt, array_statistics, load_sample, platelet_array_for_sample  # noqa: E402
-from paintjax._io import atomic_savefig, atomic_savez, atomic_write_json  # noqa: E402
-from paintjax.cli._array import plot_cross_section, plot_tilt_histogram  # noqa: E402
+from paintjax import GammaTilt, array_statistics, atomic_savefig, atomic_savez, atomic_write_json, load_sample, platelet_array_for_sample  # noqa: E402
+from paintjax.microstructure import plot_cross_section, plot_tilt_histogram  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "platelet_array"
 

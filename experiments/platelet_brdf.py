@@ -30,9 +30,8 @@ import numpy as np  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from paintjax import BeckmannBRDF, TabulatedBRDF, platelet_table_arrays  # noqa: E402
-from paintjax._io import atomic_savefig, atomic_savez, atomic_write_json  # noqa: E402
-from paintjax.brdf._analytic import coherent_lobe_width  # noqa: E402
+from paintjax import BeckmannBRDF, TabulatedBRDF, atomic_savefig, atomic_savez, atomic_write_json, platelet_table_arrays  # noqa: E402
+from paintjax.brdf import coherent_lobe_width  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "platelet_brdf"
 SIGMA, TAU, WAVELENGTH, N = 0.051, 0.64, 0.5, 1.5

@@ -32,11 +32,19 @@ import numpy as np  # noqa: E402
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from paintjax import BeckmannBRDF, HeTorranceBRDF, TabulatedBRDF, platelet_table_arrays, synthesize_profiles  # noqa: E402
-from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
-from paintjax.brdf._in_plane import _fresnel_np, leontovich_reflectance  # noqa: E402
-from paintjax.optics._aluminium import aluminium_index  # noqa: E402
-from paintjax.wave._solver import default_spacing, profile_averaged_lobes, solve_profiles  # noqa: E402
+from paintjax import (  # noqa: E402
+    BeckmannBRDF,
+    HeTorranceBRDF,
+    TabulatedBRDF,
+    atomic_savefig,
+    atomic_write_json,
+    fresnel_conductor,
+    platelet_table_arrays,
+    synthesize_profiles,
+)
+from paintjax.brdf import leontovich_reflectance  # noqa: E402
+from paintjax.optics import aluminium_index  # noqa: E402
+from paintjax.wave import default_spacing, profile_averaged_lobes, solve_profiles  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "platelet_brdf_truth"
 AL = complex(np.asarray(aluminium_index(0.5)))
@@ -86,7 +94,7 @@ def main() -> dict:
         r = profile_averaged_lobes(sigma, tau, num_profiles=40, incidence_deg=inc, theta_s_deg=TS, n_medium=n)
         k = 2 * np.pi * n / 0.5
         mu = np.cos(np.deg2rad(inc))
-        closed = _fresnel_np(mu, n, AL) * np.exp(-((2 * k * sigma * mu) ** 2))
+        closed = np.asarray(fresnel_conductor(mu, n, AL)[2]) * np.exp(-((2 * k * sigma * mu) ** 2))
         got, se = np.asarray(r.coherent_reflectance), np.asarray(r.coherent_reflectance_se)
         summary["coherent"][f"sigma={sigma},tau={tau},n={n}"] = {"incidence_deg": inc.tolist(), "wave": got.tolist(), "se": se.tolist(), "kirchhoff": closed.tolist()}
         ax[0, 1].errorbar(inc, np.abs(got) + 1e-12, yerr=se, fmt=style, label=f"wave |R_coh| ± SE, σ {sigma}, τ {tau} µm, n {n}")

@@ -17,10 +17,15 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from paintjax._io import atomic_savefig, atomic_savez, atomic_write_json  # noqa: E402
-from paintjax.wave._closed_forms import kirchhoff_coherent_fraction, kirchhoff_sigma  # noqa: E402
-from paintjax.wave._profiles import profile_statistics, synthesize_profiles  # noqa: E402
-from paintjax.wave._solver import default_spacing, solve_profiles  # noqa: E402
+from paintjax import atomic_savefig, atomic_savez, atomic_write_json  # noqa: E402
+from paintjax.wave import (  # noqa: E402  # noqa: E402
+    default_spacing,
+    kirchhoff_coherent_fraction,
+    kirchhoff_sigma,
+    profile_statistics,
+    solve_profiles,
+    synthesize_profiles,
+)
 
 OUT = Path(__file__).parent / "output" / "platelet_lobe"
 SIGMA, TAU, LAM, N_MED, LENGTH, COUNT, SEED = 0.051, 0.64, 0.5, 1.5, 20.0, 10, 0

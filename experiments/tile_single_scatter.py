@@ -39,12 +39,23 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from paintjax import GammaTilt, HotSpot, MirrorBRDF, boolean_platelet_array, build_grid, ma98_geometry, trace  # noqa: E402
-from paintjax._cache import enable_compilation_cache  # noqa: E402
-from paintjax._io import atomic_savefig, atomic_write_json  # noqa: E402
-from paintjax.instrument._single_scatter import microfacet_reflectance_factor  # noqa: E402
-from paintjax.tracer._options import TracerOptions  # noqa: E402
-from paintjax.tracer._tile_single_scatter import tile_mirror_single_scatter  # noqa: E402
+from paintjax import (  # noqa: E402
+    GammaTilt,
+    HotSpot,
+    MirrorBRDF,
+    atomic_savefig,
+    atomic_write_json,
+    boolean_platelet_array,
+    build_grid,
+    enable_compilation_cache,  # noqa: E402
+    ma98_geometry,
+    trace,
+)
+from paintjax.instrument import microfacet_reflectance_factor  # noqa: E402
+from paintjax.tracer import (
+    TracerOptions,  # noqa: E402
+    tile_mirror_single_scatter,  # noqa: E402
+)
 
 OUT = Path(__file__).parent / "output" / "tile_single_scatter"
 N, WIDTH, THICKNESS, MEAN_FREE_DEPTH, FILM, TILE = 1.5, 1.0, 0.02, 50.0, 230.0, 40.0  # the tracer tests' thin-mirror scene (TILE: default)

@@ -7,7 +7,6 @@ Writes experiments/output/tracer_forward/run_all.json plus the outputs of the th
 
 Run from the repository root: python experiments/tracer_emulator_study.py
 """
-import argparse
 import json
 import sys
 import time
@@ -18,30 +17,37 @@ import jax
 jax.config.update("jax_enable_x64", True)
 from pathlib import Path
 
-from paintjax._cache import enable_compilation_cache
+from paintjax import enable_compilation_cache
 
 enable_compilation_cache()
 import build_tracer_emulator
 import coverage
 import fit_silver
 
-from paintjax._io import atomic_write_json
+from paintjax import atomic_write_json
 
 L = Path("experiments/output/tracer_forward")
 t = {}
 t0 = time.perf_counter(); build_tracer_emulator.main(); t["build"] = time.perf_counter() - t0
 t0 = time.perf_counter(); coverage.main(["--forward", "tracer-emulator", "--datasets", "20", "--walkers", "24", "--steps", "2000", "--starts", "4"]); t["coverage"] = time.perf_counter() - t0
 t0 = time.perf_counter(); fit_silver.main(["--forward", "tracer-emulator", "--check-draws", "8"]); t["fit_silver"] = time.perf_counter() - t0
-from paintjax.cli._fit import compute
+import contextlib
+import io
+
+from paintjax.cli import main as paintjax_cli
 
 
-def ns(**kw):
-    base = dict(measured=None, sample="silver1", forward="tracer-emulator", free=None, fix=None, starts=8, seed=0, posterior=False,
-                walkers=32, max_steps=20000, min_ess=1000.0, chain=None, out=None, no_progress=True, json=True)
-    return argparse.Namespace(**(base | kw))
-for name, kw in (("cli_fit_first", {}), ("cli_fit_second", {}), ("cli_posterior", {"posterior": True})):
+def fit_cli(*extra):
+    """`paintjax fit --sample silver1 --forward tracer-emulator --json …` in this process: its JSON result."""
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        paintjax_cli(["fit", "--sample", "silver1", "--forward", "tracer-emulator", "--no-progress", "--json", *extra])
+    return json.loads(out.getvalue())
+
+
+for name, extra in (("cli_fit_first", ()), ("cli_fit_second", ()), ("cli_posterior", ("--posterior",))):
     c0, w0 = time.process_time(), time.perf_counter()
-    r = compute(ns(**kw))
+    r = fit_cli(*extra)
     t[name] = {"wall": time.perf_counter() - w0, "cpu": time.process_time() - c0, "seconds": r["seconds"], "params": r["params"],
                "stderr": r["stderr"], "chi2": r["chi2"], "L_star_fit": r["L_star_fit"],
                "posterior": None if r["posterior"] is None else {k: r["posterior"][k] for k in ("mean", "q05", "q95", "tau_int", "n_eff", "steps", "converged")}}

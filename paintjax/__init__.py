@@ -14,7 +14,7 @@ from ._cache import cache_key, cached_arrays, default_cache_dir, enable_compilat
 from ._io import atomic_savefig, atomic_savez, atomic_write_json, to_jsonable
 
 # the forward pipeline: a paint's inputs → five-angle L*
-from ._pipeline import platelet_brdf, sample_array, simulate
+from ._pipeline import array_overrides, platelet_brdf, sample_array, simulate
 
 # published reference samples
 from ._samples import Measured, Sample, load_sample, sample_names

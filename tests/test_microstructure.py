@@ -325,7 +325,7 @@ def test_sample_overrides_and_unknown_sample():
 @pytest.fixture
 def main(monkeypatch):
     """`paintjax` entry point with only this command registered (independent of other commands)."""
-    from paintjax import _cli
+    from paintjax.cli import _main as _cli
 
     assert "array" in _cli.COMMANDS
     monkeypatch.setattr(_cli, "COMMANDS", ("array",))

@@ -10,19 +10,10 @@ import numpy as np
 import pytest
 
 import paintjax
+from paintjax.wave._beam import incident_field, incident_gradient, max_incidence_deg
 from paintjax.wave._closed_forms import kirchhoff_sigma, spm_sigma, spm_sigma_realisation
 from paintjax.wave._profiles import Profiles, grid, synthesize_profiles
-from paintjax.wave._solver import (
-    channels,
-    default_spacing,
-    flat_profiles,
-    incident_field,
-    incident_gradient,
-    max_incidence_deg,
-    scattering_amplitudes,
-    solve_profiles,
-    surface_fields,
-)
+from paintjax.wave._solver import channels, default_spacing, flat_profiles, scattering_amplitudes, solve_profiles, surface_fields
 
 LAM, N_MED = 0.5, 1.5
 K = 2 * np.pi * N_MED / LAM

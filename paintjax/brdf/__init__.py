@@ -12,3 +12,27 @@ from ._he_torrance import HeTorranceBRDF
 from ._in_plane import DEFAULT_INCIDENCE_DEG, DEFAULT_NUM_PROFILES, InPlaneLobes, kirchhoff_lobes, leontovich_reflectance
 from ._platelet import AbstractPlateletBRDF, LambertianBRDF, MirrorBRDF, reflect
 from ._table import TABLE_VERSION, TabulatedBRDF, platelet_brdf_table, platelet_table_arrays, table_from_lobes
+
+__all__ = [
+    "AbstractGaussianMetalBRDF",
+    "AbstractLobeBRDF",
+    "BeckmannBRDF",
+    "coherent_lobe_width",
+    "BRDFTableGrid",
+    "platelet_brdf_grid",
+    "HeTorranceBRDF",
+    "DEFAULT_INCIDENCE_DEG",
+    "DEFAULT_NUM_PROFILES",
+    "InPlaneLobes",
+    "kirchhoff_lobes",
+    "leontovich_reflectance",
+    "AbstractPlateletBRDF",
+    "LambertianBRDF",
+    "MirrorBRDF",
+    "reflect",
+    "TABLE_VERSION",
+    "TabulatedBRDF",
+    "platelet_brdf_table",
+    "platelet_table_arrays",
+    "table_from_lobes",
+]

@@ -11,7 +11,8 @@ import equinox as eqx
 import numpy as np
 from scipy.special import gammaln as np_gammaln
 
-from ..wave._solver import max_incidence_deg, profile_averaged_lobes
+from ..wave._beam import max_incidence_deg
+from ..wave._solver import profile_averaged_lobes
 from ._analytic import check_positive, metal_index_or_aluminium, series_terms
 
 #: Default tabulated incidences [deg] (0–89°).

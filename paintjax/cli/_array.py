@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
-
 from .._pipeline import array_overrides
 from ..microstructure._plots import plot_cross_section, plot_tilt_histogram
 from ._common import add_array_arguments, add_json_argument, add_output_argument, print_json

@@ -29,3 +29,28 @@ from ._lightness import (
     spectral_weights,
 )
 from ._single_scatter import microfacet_lightness, microfacet_reflectance_factor, single_scatter_brdf
+
+__all__ = [
+    "ASPECULAR_15",
+    "ASPECULAR_45",
+    "STANDARD_ASPECULAR",
+    "Geometry",
+    "custom_geometry",
+    "hemisphere_quadrature",
+    "ma98_geometry",
+    "mirror_tilt_deg",
+    "refract_into_coat",
+    "HotSpot",
+    "boolean_escape_monte_carlo",
+    "flop_index",
+    "lightness",
+    "lightness_np",
+    "lightness_to_reflectance_factor",
+    "reflectance_factor_to_lightness",
+    "spectral_lightness",
+    "spectral_to_xyz",
+    "spectral_weights",
+    "microfacet_lightness",
+    "microfacet_reflectance_factor",
+    "single_scatter_brdf",
+]

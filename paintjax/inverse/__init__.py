@@ -14,3 +14,35 @@ from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
 from ._posterior import LogPosterior, PosteriorResult, corner_plot, sample_posterior, save_netcdf
 from ._registry import make_forward, register_forward
 from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerSettings, direct_tracer, tracer_emulator, tracer_info
+
+__all__ = [
+    "AnalyticForward",
+    "DesignResult",
+    "design_to_target",
+    "Emulator",
+    "build_emulator",
+    "emulator_check",
+    "fit_emulator",
+    "FitResult",
+    "fit_least_squares",
+    "CallableForward",
+    "ForwardModel",
+    "PARAMETERS",
+    "Parameter",
+    "ParameterSpec",
+    "make_spec",
+    "LogPosterior",
+    "PosteriorResult",
+    "corner_plot",
+    "sample_posterior",
+    "save_netcdf",
+    "make_forward",
+    "register_forward",
+    "TRACER_BOX",
+    "TRACER_PARAMETERS",
+    "TracerLStar",
+    "TracerSettings",
+    "direct_tracer",
+    "tracer_emulator",
+    "tracer_info",
+]

@@ -33,6 +33,13 @@ def _metal_index(wavelength_um: float) -> complex:
     with jax.ensure_compile_time_eval():
         return complex(np.asarray(aluminium_index(wavelength_um)))
 
+def _set_optics(brdf, n_binder, wavelength_um, metal_index) -> None:
+    """The binder index, wavelength and metal index fields of a rough-platelet BRDF (aluminium by default)."""
+    brdf.n_binder = float(n_binder)
+    brdf.wavelength_um = float(wavelength_um)
+    brdf.metal_index = _metal_index(wavelength_um) if metal_index is None else complex(metal_index)
+
+
 
 class CoherentMirrorBRDF(AbstractPlateletBRDF):
     """Coherent (specular) part of a rough metal platelet: Fresnel × exp(−(2kσ cosθ)²) (as `_beckmann`).
@@ -48,9 +55,7 @@ class CoherentMirrorBRDF(AbstractPlateletBRDF):
 
     def __init__(self, sigma, *, n_binder: float = 1.5, wavelength_um: float = 0.55, metal_index=None):
         self.sigma = jnp.asarray(sigma, dtype=jnp.result_type(float))
-        self.n_binder = float(n_binder)
-        self.wavelength_um = float(wavelength_um)
-        self.metal_index = _metal_index(wavelength_um) if metal_index is None else complex(metal_index)
+        _set_optics(self, n_binder, wavelength_um, metal_index)
 
     @property
     def medium_index(self):
@@ -106,9 +111,7 @@ class AbstractTracedLobeBRDF(AbstractPlateletBRDF):
     def __init__(self, sigma, tau, *, n_binder: float = 1.5, wavelength_um: float = 0.55, metal_index=None):
         self.sigma = jnp.asarray(sigma, dtype=jnp.result_type(float))
         self.tau = jnp.asarray(tau, dtype=jnp.result_type(float))
-        self.n_binder = float(n_binder)
-        self.wavelength_um = float(wavelength_um)
-        self.metal_index = _metal_index(wavelength_um) if metal_index is None else complex(metal_index)
+        _set_optics(self, n_binder, wavelength_um, metal_index)
 
     @property
     def medium_index(self):

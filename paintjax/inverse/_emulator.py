@@ -27,6 +27,7 @@ from .._io import atomic_savez
 from ..instrument._geometry import STANDARD_ASPECULAR
 from ._forward import ForwardModel, Restricted
 from ._parameters import ParameterSpec
+from ._forward import _assemble
 
 EMULATOR_VERSION = 1  # meaning of the cached design evaluations (bump to re-run them)
 EMULATOR_FIT_VERSION = 4  # meaning of the fit on top of them (a change only re-fits, from the cached design)

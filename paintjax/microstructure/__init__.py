@@ -12,3 +12,32 @@ from ._plots import plot_cross_section, plot_tilt_histogram
 from ._sizes import LogNormalSizes, PolynomialCDFSizes, SizeDistribution, TabulatedCDFSizes, default_sizes
 from ._statistics import array_statistics, cross_section, overlapping_pairs, tilt_ks
 from ._tilt import GammaTilt
+
+__all__ = [
+    "MAX_PVC",
+    "GenerationLog",
+    "PlateletArray",
+    "boolean_platelet_array",
+    "generate_platelet_array",
+    "platelet_array_for_sample",
+    "UniformGrid",
+    "build_grid",
+    "candidate_pairs",
+    "check_grid_matches",
+    "midplane_overlap",
+    "obb_overlap",
+    "periodic_overlap",
+    "tri_tri_intersect",
+    "plot_cross_section",
+    "plot_tilt_histogram",
+    "LogNormalSizes",
+    "PolynomialCDFSizes",
+    "SizeDistribution",
+    "TabulatedCDFSizes",
+    "default_sizes",
+    "array_statistics",
+    "cross_section",
+    "overlapping_pairs",
+    "tilt_ks",
+    "GammaTilt",
+]

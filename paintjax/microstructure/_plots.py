@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+
 def plot_cross_section(array, path, y: float | None = None, window: float = 150.0, title: str = "") -> Path:
     """Vertical slice y = const through the basecoat, like a micrograph (true aspect ratio).
 

@@ -81,7 +81,7 @@ class SizeDistribution(eqx.Module):
         return self.ppf(q)
 
     def moment(self, k: int) -> float:
-        """E[w^k] [µm^k] by the midpoint rule on the inverse CDF (65 536 nodes)."""
+        """E[w^k] in µm^k, by the midpoint rule on the inverse CDF (65 536 nodes)."""
         u = (np.arange(65536) + 0.5) / 65536
         return float(np.mean(self.ppf_np(u) ** k))
 

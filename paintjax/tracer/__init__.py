@@ -13,3 +13,21 @@ from ._scene import build_scene
 from ._spectral import SPECTRAL_NODES_NM, combine_spectral, lab_from_xyz, spectral_node_weights
 from ._tile_single_scatter import tile_mirror_single_scatter
 from ._trace import check_ray_count, lightness_with_se, trace
+
+__all__ = [
+    "LEDGER_KEYS",
+    "MAX_CREATED_ENERGY",
+    "EnergyCreationError",
+    "TracerOptions",
+    "plain_trace_seconds",
+    "TraceResult",
+    "build_scene",
+    "SPECTRAL_NODES_NM",
+    "combine_spectral",
+    "lab_from_xyz",
+    "spectral_node_weights",
+    "tile_mirror_single_scatter",
+    "check_ray_count",
+    "lightness_with_se",
+    "trace",
+]

@@ -7,10 +7,12 @@ import time
 import jax
 import jax.numpy as jnp
 import numpy as np
+
 from ._options import LEDGER_KEYS, TracerOptions
 from ._path import _new_ray, _new_ray_uniforms, _ray_hash, _step_one, _uniforms
 from ._scene import _Scene, _traverse
 from ._trace import _seed_state
+
 
 def plain_trace_seconds(scene: _Scene, options: TracerOptions, seed: int, rays: int, batch: int) -> float:
     """Seconds for `rays` rays traced with one `vmap(while_loop)` per batch of `batch` rays.

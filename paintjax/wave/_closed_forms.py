@@ -130,7 +130,7 @@ def spm_sigma_realisation(profiles, incidence_deg: ArrayLike, theta_s_deg: Array
     F = cosθ_i cosθ_s (Dirichlet) or 1 − sinθ_i sinθ_s (Neumann), normalised like the solver. Its
     ensemble mean is `spm_sigma`; away from the specular beam it is the solver's σ to O((kσ)²).
     """
-    from ._solver import incident_field, incident_power
+    from ._beam import incident_field, incident_power
 
     k = _wavenumber(wavelength_um, n_medium)
     length = profiles.x.shape[0] * profiles.spacing

@@ -53,6 +53,7 @@ from jax.scipy.linalg import lu_factor, lu_solve
 from jaxtyping import Array, Complex, Float
 
 from ..optics._aluminium import aluminium_index
+from ._beam import incident_field, incident_power, max_incidence_deg
 from ._coherent import (
     COHERENT_WINDOW,
     MIN_PROFILES_CONTROL,
@@ -70,10 +71,6 @@ POLARIZATIONS = ("te", "tm", "unpolarized")
 DEFAULT_POINTS_PER_WAVELENGTH = 12.0
 #: Part of the BRDF tables' cache keys; bump when the solver's numbers change.
 SOLVER_VERSION = "1"
-#: Largest accepted Thorsos-beam correction (1 + 2tan²θ)/(2k²g²cos²θ) (beam still a beam; at 0.1
-#: the flat-metal reflectance is already 4 % off).
-MAX_BEAM_CORRECTION = 0.02
-
 _EULER_GAMMA = 0.57721566490153286060651209008240243
 _ZETA3, _ZETA5 = 1.2020569031595942854, 1.0369277551433699263
 _DZETA_M2 = -_ZETA3 / (4.0 * math.pi**2)  # ζ'(−2)
@@ -152,44 +149,6 @@ def channels(boundary: str, polarization: str, metal_index=None, n_medium: float
         raise ValueError(f"metal_index must be a finite complex index with k > 0 (absorbing), got {metal_index!r}")
     root = np.sqrt(m**2 / n_medium**2 + 0j)
     return tuple(("second", complex(root) if p == "te" else complex(1.0 / root)) for p in pols)
-
-
-def beam_correction(incidence_rad, k: float, taper_um: float):
-    """The Thorsos-beam term (1 + 2tan²θ)/(2k²g²cos²θ) (must stay ≪ 1)."""
-    c = np.cos(incidence_rad)
-    return (1.0 + 2.0 * np.tan(incidence_rad) ** 2) / (2.0 * k**2 * taper_um**2 * c**2)
-
-
-def max_incidence_deg(length_um: float = 20.0, wavelength_um: float = 0.5, n_medium: float = 1.5, taper_um=None) -> float:
-    """Largest incidence angle [deg] accepted for this surface (beam correction ≤ `MAX_BEAM_CORRECTION`)."""
-    k = 2.0 * np.pi * n_medium / wavelength_um
-    g = length_um / 4.0 if taper_um is None else taper_um
-    th = np.linspace(0.0, np.pi / 2 - 1e-6, 20001)
-    ok = beam_correction(th, k, g) <= MAX_BEAM_CORRECTION
-    if not ok.any():
-        g_min = 1.0 / (k * np.sqrt(2.0 * MAX_BEAM_CORRECTION))
-        raise ValueError(f"taper_um must be at least {g_min:.3g} µm here (the Thorsos beam is no beam below it), got {g!r}")
-    return float(np.degrees(th[ok][-1]))
-
-
-def incident_power(incidence_rad, k, taper_um):
-    """Power of the tapered beam crossing the mean plane, g√(π/2) cosθ [1 − correction]."""
-    return taper_um * jnp.sqrt(jnp.pi / 2.0) * jnp.cos(incidence_rad) * (1.0 - beam_correction_jnp(incidence_rad, k, taper_um))
-
-
-def beam_correction_jnp(incidence_rad, k, taper_um):
-    c = jnp.cos(incidence_rad)
-    return (1.0 + 2.0 * jnp.tan(incidence_rad) ** 2) / (2.0 * k**2 * taper_um**2 * c**2)
-
-
-def incident_field(x, h, incidence_rad, k, taper_um):
-    """Thorsos tapered plane wave on the surface points, (N,) × (I,) → (N, I)."""
-    th = jnp.asarray(incidence_rad)[None, :]
-    xx = x[:, None] + h[:, None] * jnp.tan(th)
-    c = jnp.cos(th)
-    w = (2.0 * xx**2 / taper_um**2 - 1.0) / (k * taper_um * c) ** 2
-    phase = k * (x[:, None] * jnp.sin(th) - h[:, None] * c) * (1.0 + w)
-    return jnp.exp(1j * phase - xx**2 / taper_um**2)
 
 
 def band_width(k: float, dx: float) -> int:
@@ -286,7 +245,7 @@ def _solve_one(h, dh, d2h, x, inc, ang, etas, k, dx, g, kinds, band):
 
 
 @functools.partial(jax.jit, static_argnames=("kinds", "band", "batch_size"))
-def _solve_batch(h, dh, d2h, x, inc, ang, etas, k, dx, g, *, kinds, band, batch_size):
+def solve_batch(h, dh, d2h, x, inc, ang, etas, k, dx, g, *, kinds, band, batch_size):
     def one(args):
         return _solve_one(*args, x, inc, ang, etas, k, dx, g, kinds, band)
 
@@ -371,7 +330,7 @@ def solve_profiles(
     kinds = tuple(c[0] for c in chans)
     etas = jnp.asarray([c[1] for c in chans], dtype=jnp.result_type(complex))
     inc_rad = np.radians(inc)
-    amps, absorbed, control = _solve_batch(
+    amps, absorbed, control = solve_batch(
         profiles.h, profiles.dh, profiles.d2h, profiles.x, jnp.asarray(inc_rad), jnp.asarray(ang), etas,
         k, dx, g, kinds=kinds, band=band_width(k, dx), batch_size=int(batch_size),
     )  # (B, C, A, I), (B, C, I), (B, A, I)
@@ -434,26 +393,12 @@ def scattering_amplitudes(
         raise ValueError(f"taper_um must be > 0 (inf for a plane wave), got {taper_um!r}")
     inc = _check_angles("incidence_deg", incidence_deg, -89.0, 89.0)
     ths = _check_angles("theta_s_deg", theta_s_deg, -90.0, 90.0)
-    amps, _, _ = _solve_batch(
+    amps, _, _ = solve_batch(
         profiles.h, profiles.dh, profiles.d2h, profiles.x, jnp.radians(jnp.asarray(inc)), jnp.radians(jnp.asarray(ths)),
         jnp.asarray([c[1] for c in chans], dtype=jnp.result_type(complex)), k, dx, g,
         kinds=tuple(c[0] for c in chans), band=band_width(k, dx), batch_size=1,
     )
     return jnp.swapaxes(amps, -1, -2)
-
-
-def incident_gradient(x, h, incidence_rad, k, taper_um):
-    """(∂ψ_inc/∂x, ∂ψ_inc/∂z) of the Thorsos beam on the surface points, each (N, I) (autodiff)."""
-
-    def one(xi, zi):
-        return incident_field(xi[None], zi[None], incidence_rad, k, taper_um)[0]
-
-    def parts(xi, zi):
-        fr = jax.jacfwd(lambda a, b: jnp.real(one(a, b)), argnums=(0, 1))(xi, zi)
-        fi = jax.jacfwd(lambda a, b: jnp.imag(one(a, b)), argnums=(0, 1))(xi, zi)
-        return fr[0] + 1j * fi[0], fr[1] + 1j * fi[1]
-
-    return jax.vmap(parts)(x, h)
 
 
 @functools.partial(jax.jit, static_argnames=("kinds", "band"))
