@@ -2,7 +2,9 @@
 
 In: measured L* (with the instrument's uncertainty), a forward map θ → L* (the analytic model, the
 tracer, or a Gaussian-process emulator of the tracer), a prior box. Out: least-squares fits
-(Optimistix), emcee posteriors with diagnostics, and designs that reach a target curve.
+(Optimistix), emcee posteriors with diagnostics, and designs that reach a target curve; and
+measurement models of the inputs themselves (a virtual profilometer for σ, τ and a virtual
+orientation measurement for the tilt law), which say what the published inputs imply.
 """
 
 from ._analytic import AnalyticForward
@@ -12,10 +14,22 @@ from ._fit import FitResult, fit_least_squares
 from ._forward import CallableForward, ForwardModel
 from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
 from ._posterior import LogPosterior, PosteriorResult, corner_plot, sample_posterior, save_netcdf
+from ._profilometer import SIGMA_DEFINITIONS, Profilometer, log_likelihood_of_reading, profile_roughness, smoothed_gaussian_statistics
 from ._registry import make_forward, register_forward
+from ._tilt_measurement import apparent_tilt_deg, fit_gamma, gamma_fit_sd, platelets_for_sd, tilt_fit_distribution
 from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerSettings, direct_tracer, tracer_emulator, tracer_info
 
 __all__ = [
+    "SIGMA_DEFINITIONS",
+    "Profilometer",
+    "log_likelihood_of_reading",
+    "profile_roughness",
+    "smoothed_gaussian_statistics",
+    "apparent_tilt_deg",
+    "fit_gamma",
+    "gamma_fit_sd",
+    "platelets_for_sd",
+    "tilt_fit_distribution",
     "AnalyticForward",
     "DesignResult",
     "design_to_target",

@@ -1,0 +1,74 @@
+"""The virtual profilometer against closed forms: Rq = σ and the 1/e length = τ on ideal scans, the
+Gaussian point-spread function's (σ, τ), the σ readings on a sine, the likelihood's normalisation."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+from paintjax.inverse import Profilometer, log_likelihood_of_reading, profile_roughness, smoothed_gaussian_statistics
+
+LONG = dict(cutoff_fraction=None, scan_range_um=(200.0, 200.0), num_platelets=8)
+
+
+def test_ideal_instrument_without_filtering_reads_the_true_sigma_and_tau():
+    """Noiseless Gaussian surface, no filter, no PSF: Rq → σ and the 1/e crossing → τ (8 scans of 200 µm:
+    sampling SD ≈ 2 % in σ, 3 % in τ)."""
+    d = Profilometer(resolution_um=0.0, pixel_um=0.02, **LONG).measure(jax.random.PRNGKey(1), 0.051, 0.64)
+    assert d["sigma_um"] == pytest.approx(0.051, rel=0.05)
+    assert d["tau_um"] == pytest.approx(0.64, rel=0.07)
+
+
+@pytest.mark.parametrize("resolution", [0.55, 1.0])
+def test_point_spread_function_follows_the_smoothed_gaussian_closed_form(resolution):
+    """A Gaussian PSF of SD s turns (σ, τ) into (σ√(τ/τ_s), τ_s = √(τ² + 4s²))."""
+    want_s, want_t = smoothed_gaussian_statistics(0.051, 0.64, resolution)
+    assert want_t > 0.64 and want_s < 0.051
+    d = Profilometer(resolution_um=resolution, pixel_um=0.02, **LONG).measure(jax.random.PRNGKey(2), 0.051, 0.64)
+    assert d["sigma_um"] == pytest.approx(float(want_s), rel=0.05)
+    assert d["tau_um"] == pytest.approx(float(want_t), rel=0.07)
+
+
+def test_sigma_readings_on_a_sine():
+    """h = A sin kx: Rq = A/√2, successive extrema differ by 2A (local peak-to-valley), Rt = 2A."""
+    x = np.linspace(0.0, 20.0, 4001)
+    h = 0.03 * np.sin(2 * np.pi * x / 1.25)  # 16 whole periods
+    assert profile_roughness(h, "rq") == pytest.approx(0.03 / np.sqrt(2), rel=2e-3)
+    assert profile_roughness(h, "local_pv") == pytest.approx(0.06, rel=1e-3)
+    assert profile_roughness(h, "scan_pv") == pytest.approx(0.06, rel=1e-3)
+
+
+def test_published_procedure_reads_low_and_is_reproducible():
+    """The filter (cutoff 50 % of a 10–30 µm scan) removes the long-wavelength part of a Gaussian
+    spectrum, so Rq reads below the PSF-smoothed σ; the same key gives the same numbers."""
+    p = Profilometer()
+    a = p.measure(jax.random.PRNGKey(3), 0.051, 0.64)
+    b = p.measure(jax.random.PRNGKey(3), 0.051, 0.64)
+    assert a["sigma_um"] == b["sigma_um"] and a["tau_um"] == b["tau_um"]
+    assert a["sigma_um"] < float(smoothed_gaussian_statistics(0.051, 0.64, p.resolution_um)[0])
+    readings = a["sigma_um_by_definition"]
+    assert readings["rq"] < readings["local_pv"] < readings["scan_pv"]
+
+
+def test_reading_likelihood_is_a_normalised_density():
+    stats = {"log_sigma_mean": np.log(0.04), "log_sigma_sd": 0.1, "log_tau_mean": np.log(0.6), "log_tau_sd": 0.08, "log_correlation": 0.6}
+    s = np.linspace(0.025, 0.065, 161)
+    t = np.linspace(0.4, 0.9, 161)
+    dens = np.exp([[log_likelihood_of_reading(stats, a, b) for b in t] for a in s])
+    assert np.trapezoid(np.trapezoid(dens, t, axis=1), s) == pytest.approx(1.0, abs=2e-3)
+
+
+@pytest.mark.parametrize("kwargs,name", [({"resolution_um": -0.1}, "resolution_um"), ({"pixel_um": 0.0}, "pixel_um"),
+                                          ({"num_platelets": 0}, "num_platelets"), ({"scan_range_um": (30.0, 10.0)}, "scan_range_um"),
+                                          ({"cutoff_fraction": 1.5}, "cutoff_fraction"), ({"sigma_definition": "ra"}, "sigma_definition")])
+def test_bad_settings_name_the_parameter(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        Profilometer(**kwargs)
+
+
+def test_bad_surface_names_the_parameter():
+    with pytest.raises(ValueError, match="tau_um"):
+        Profilometer().measure(jax.random.PRNGKey(0), 0.05, 4.0)
+    with pytest.raises(ValueError, match="sigma_um"):
+        Profilometer().measure(jax.random.PRNGKey(0), float("nan"), 0.6)
