@@ -33,7 +33,7 @@ from paintjax.inverse import (  # noqa: E402
     SIGMA_DEFINITIONS,
     Profilometer,
     gamma_fit_sd,
-    log_likelihood_of_reading,
+    build_reading_model,
     platelets_for_sd,
     smoothed_gaussian_statistics,
     tilt_fit_distribution,
@@ -46,41 +46,30 @@ L_STAR_PREFERRED = {"Silver #1 ±2 u": (0.0423, 0.536), "Silver #1 corner": (0.0
                     "Silver #2 ±3 u": (0.0325, 0.340)}
 
 
-def roughness_grid(sigmas, taus, campaigns: int, seed: int) -> dict:
-    """Campaign statistics of the default instrument over a grid of true (σ, τ), every σ reading."""
-    prof = Profilometer()
-    key = jax.random.PRNGKey(seed)
-    cells = {}
-    t0 = time.perf_counter()
-    for i, s in enumerate(sigmas):
-        for j, t in enumerate(taus):
-            d = prof.campaign_distribution(jax.random.fold_in(key, i * len(taus) + j), float(s), float(t), campaigns)
-            cells[(i, j)] = d
-        print(f"  σ = {1000 * s:.0f} nm done ({time.perf_counter() - t0:.0f} s)", flush=True)
-    out = {"sigma_true_um": np.asarray(sigmas), "tau_true_um": np.asarray(taus), "tau_mean_um": np.zeros((len(sigmas), len(taus))),
-           "tau_sd_um": np.zeros((len(sigmas), len(taus))), "by_definition": {}}
-    for (i, j), d in cells.items():
-        out["tau_mean_um"][i, j], out["tau_sd_um"][i, j] = d["tau_mean_um"], d["tau_sd_um"]
+def roughness_likelihood(campaigns: int, seed: int) -> dict:
+    """The published reading's likelihood over the true (σ, τ), for every σ reading (`build_reading_model`:
+    σ only scales the heights, so the reading's law is simulated over τ alone and is exact in σ)."""
+    model = build_reading_model(campaigns=campaigns, seed=seed, progress=True)
+    taus = np.exp(np.asarray(model.log_tau_nodes))
+    sig = np.geomspace(0.01, 0.2, 161)
+    tau = np.geomspace(taus[0], taus[-1], 161)
+    S, T = np.meshgrid(sig, tau, indexing="ij")
+    out = {"sigma_true_um": sig, "tau_true_um": tau, "tau_nodes_um": taus,
+           "tau_hat_median_um": np.exp(np.asarray(model.log_tau_hat_mean)), "tau_hat_log_sd": np.asarray(model.log_tau_hat_sd),
+           "by_definition": {}}
     for name in SIGMA_DEFINITIONS:
-        mean, sd, ll = (np.zeros((len(sigmas), len(taus))) for _ in range(3))
-        for (i, j), d in cells.items():
-            stats = {**d, **d["by_definition"][name]}
-            mean[i, j], sd[i, j] = stats["sigma_mean_um"], stats["sigma_sd_um"]
-            ll[i, j] = log_likelihood_of_reading(stats, PUBLISHED["sigma_um"], PUBLISHED["tau_um"])
+        ll = np.asarray(model.log_likelihood(S, T, PUBLISHED["sigma_um"], PUBLISHED["tau_um"], name))
         i, j = np.unravel_index(np.argmax(ll), ll.shape)
-        out["by_definition"][name] = {"sigma_mean_um": mean, "sigma_sd_um": sd, "log_likelihood": ll,
-                                      "max_likelihood_true": {"sigma_um": float(sigmas[i]), "tau_um": float(taus[j])},
-                                      "L_star_preferred_log_likelihood": {k: _interp_ll(ll, sigmas, taus, *v) for k, v in L_STAR_PREFERRED.items()},
-                                      "published_log_likelihood": _interp_ll(ll, sigmas, taus, PUBLISHED["sigma_um"], PUBLISHED["tau_um"])}
+        at = lambda s, t: float(ll.max() - model.log_likelihood(s, t, PUBLISHED["sigma_um"], PUBLISHED["tau_um"], name))  # noqa: E731
+        inside = ll >= ll.max() - 1.15  # 68 % region of a 2-D normal (Δ log L = χ²₂(0.68)/2)
+        out["by_definition"][name] = {
+            "log_likelihood": ll, "ratio_median": np.exp(np.asarray(model.log_ratio_mean[name])), "ratio_log_sd": np.asarray(model.log_ratio_sd[name]),
+            "max_likelihood_true": {"sigma_um": float(sig[i]), "tau_um": float(tau[j])},
+            "region_68": {"sigma_um": [float(S[inside].min()), float(S[inside].max())], "tau_um": [float(T[inside].min()), float(T[inside].max())]},
+            "delta_log_likelihood": {"published reading taken as true": at(PUBLISHED["sigma_um"], PUBLISHED["tau_um"]),
+                                     **{k: at(*v) for k, v in L_STAR_PREFERRED.items()}},
+        }
     return out
-
-
-def _interp_ll(ll, sigmas, taus, s, t) -> float:
-    """Bilinear interpolation of the log-likelihood grid in (log σ, log τ)."""
-    from scipy.interpolate import RegularGridInterpolator
-
-    f = RegularGridInterpolator((np.log(sigmas), np.log(taus)), ll, bounds_error=False, fill_value=None)
-    return float(f([[np.log(s), np.log(t)]])[0])
 
 
 def procedure_steps(campaigns: int, seed: int) -> list[dict]:
@@ -134,22 +123,34 @@ def plot(result: dict, path: Path) -> Path:
 
     g = result["roughness_grid"]
     S, T = np.meshgrid(1000 * np.asarray(g["sigma_true_um"]), np.asarray(g["tau_true_um"]), indexing="ij")
-    fig, axes = plt.subplots(1, 4, figsize=(18, 4.4))
+    fig, axes = plt.subplots(1, 5, figsize=(23, 4.4))
     for ax, name in zip(axes[:3], SIGMA_DEFINITIONS):
-        d = g["by_definition"][name]
-        ll = np.asarray(d["log_likelihood"])
+        ll = np.asarray(g["by_definition"][name]["log_likelihood"])
         rel = ll - ll.max()
         cs = ax.contourf(S, T, np.maximum(rel, -12), levels=np.arange(-12, 0.5, 1.0), cmap="viridis")
-        ax.contour(S, T, rel, levels=[-2.3, -0.5], colors="w", linewidths=(0.8, 1.4))  # ≈ 90 %, 39 % (2-D normal)
+        ax.contour(S, T, rel, levels=[-3.0, -1.15], colors="w", linewidths=(0.8, 1.4))  # 95 %, 68 % (2-D normal)
         ax.plot(1000 * PUBLISHED["sigma_um"], PUBLISHED["tau_um"], "r*", ms=12, label="published reading taken as true")
         for (lab, (s, t)), m in zip(L_STAR_PREFERRED.items(), "osd^"):
             ax.plot(1000 * s, t, m, mfc="none", mec="w", ms=8, label=f"L*-preferred: {lab}")
         ax.set_xscale("log"), ax.set_yscale("log")
         ax.set_xlabel("true σ [nm]"), ax.set_ylabel("true τ [µm]")
-        ax.set_title(f"log p(published 51 nm, 640 nm | true σ, τ)\nσ read as {name}", fontsize=9)
+        ax.set_title(f"log p(reading 51 nm, 640 nm | true σ, τ), σ read as {name}\n(white: 68 % and 95 % regions)", fontsize=9)
         fig.colorbar(cs, ax=ax, fraction=0.046)
     axes[0].legend(fontsize=6, loc="lower right")
     ax = axes[3]
+    tn = np.asarray(g["tau_nodes_um"])
+    med, sd = np.asarray(g["tau_hat_median_um"]), np.asarray(g["tau_hat_log_sd"])
+    ax.fill_between(tn, med * np.exp(-sd), med * np.exp(sd), alpha=0.3, label="τ̂ (campaign of 10), ±1 SD")
+    ax.plot(tn, med, "C0-")
+    for name, c in zip(SIGMA_DEFINITIONS, ("C1", "C2", "C3")):
+        ax.plot(tn, np.asarray(g["by_definition"][name]["ratio_median"]), "--", color=c, label=f"σ̂/σ, {name}")
+    ax.plot(tn, tn, "k:", lw=0.8, label="reads the truth")
+    ax.axhline(PUBLISHED["tau_um"], color="r", lw=0.8)
+    ax.set_xscale("log"), ax.set_yscale("log")
+    ax.set_xlabel("true τ [µm]"), ax.set_ylabel("τ̂ [µm]  /  σ̂ / σ")
+    ax.set_title("what the procedure reads (PSF 0.55 µm, filter 50 %)", fontsize=9)
+    ax.legend(fontsize=6)
+    ax = axes[4]
     for name, m in (("silver1", "o"), ("silver2", "s")):
         rows = result["tilt"][name]["by_count"]
         n = [r["n"] for r in rows]
@@ -168,26 +169,26 @@ def plot(result: dict, path: Path) -> Path:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--campaigns", type=int, default=24, help="simulated measurement campaigns per true (σ, τ) (default 24)")
+    ap.add_argument("--campaigns", type=int, default=64, help="simulated measurement campaigns per true τ node (default 64)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--tilt-replicates", type=int, default=200)
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     print("instrument and procedure at the published point", flush=True)
-    steps = procedure_steps(4 * args.campaigns, args.seed)
+    steps = procedure_steps(args.campaigns, args.seed)
     print("tilt law", flush=True)
     tilt = tilt_study(args.seed, args.tilt_replicates)
     print("roughness: true → measured over the grid", flush=True)
-    grid = roughness_grid(np.geomspace(0.015, 0.15, 9), np.geomspace(0.25, 2.0, 8), args.campaigns, args.seed)
+    grid = roughness_likelihood(args.campaigns, args.seed)
     result = {"published": PUBLISHED, "instrument": {"resolution_um": Profilometer().resolution_um, "pixel_um": Profilometer().pixel_um,
                                                      "platelets": 10, "scan_range_um": [10.0, 30.0], "cutoff_fraction": 0.5},
               "campaigns": args.campaigns, "seed": args.seed, "procedure_steps": steps, "tilt": tilt, "roughness_grid": grid,
               "seconds": time.perf_counter() - t0}
     for name, d in grid["by_definition"].items():
-        ml = d["max_likelihood_true"]
-        print(f"σ read as {name}: most likely true σ {1000 * ml['sigma_um']:.0f} nm, τ {ml['tau_um']:.2f} µm; log-likelihood of the "
-              f"published point taken as true {d['published_log_likelihood']:.1f}, of the L*-preferred points "
-              f"{ {k: round(v, 1) for k, v in d['L_star_preferred_log_likelihood'].items()} }", flush=True)
+        ml, reg = d["max_likelihood_true"], d["region_68"]
+        print(f"σ read as {name}: most likely true σ {1000 * ml['sigma_um']:.0f} nm (68 %: {1000 * reg['sigma_um'][0]:.0f}–"
+              f"{1000 * reg['sigma_um'][1]:.0f}), τ {ml['tau_um']:.2f} µm ({reg['tau_um'][0]:.2f}–{reg['tau_um'][1]:.2f}); "
+              f"Δ log-likelihood from the most likely: { {k: round(v, 1) for k, v in d['delta_log_likelihood'].items()} }", flush=True)
     OUT.mkdir(parents=True, exist_ok=True)
     atomic_write_json(OUT / "summary.json", result)
     print(f"figure: {plot(result, OUT / 'input_measurement.png')}; {time.perf_counter() - t0:.0f} s", flush=True)

@@ -72,3 +72,33 @@ def test_bad_surface_names_the_parameter():
         Profilometer().measure(jax.random.PRNGKey(0), 0.05, 4.0)
     with pytest.raises(ValueError, match="sigma_um"):
         Profilometer().measure(jax.random.PRNGKey(0), float("nan"), 0.6)
+
+
+def test_sigma_only_scales_the_reading():
+    """Every step is linear in the heights and the 1/e length ignores their scale: with the same key, σ̂/σ
+    and τ̂ do not depend on σ. `ReadingModel` rests on this."""
+    p = Profilometer()
+    a = p.measure(jax.random.PRNGKey(5), 0.02, 0.5)
+    b = p.measure(jax.random.PRNGKey(5), 0.08, 0.5)
+    for name in ("rq", "local_pv", "scan_pv"):
+        assert a["sigma_um_by_definition"][name] / 0.02 == pytest.approx(b["sigma_um_by_definition"][name] / 0.08, rel=1e-9)
+    assert a["tau_um"] == pytest.approx(b["tau_um"], rel=1e-12)
+
+
+def test_reading_model_matches_a_direct_campaign_distribution(tmp_path):
+    """The interpolated model at a node reproduces that node's simulated moments, scales exactly with σ,
+    and its likelihood is smooth (finite gradient) in (σ, τ)."""
+    from paintjax.inverse import build_reading_model
+
+    m = build_reading_model(tau_nodes_um=[0.4, 0.8], campaigns=8, seed=3, cache_dir=tmp_path)
+    again = build_reading_model(tau_nodes_um=[0.4, 0.8], campaigns=8, seed=3, cache_dir=tmp_path)  # from the cache
+    assert np.allclose(np.asarray(m.log_tau_hat_mean), np.asarray(again.log_tau_hat_mean))
+    d = Profilometer().campaign_distribution(jax.random.fold_in(jax.random.PRNGKey(3), 1), 0.05, 0.8, 8)
+    mean_r, sd_r, mean_t, sd_t, _ = (float(v) for v in m.moments(0.8, "rq"))
+    assert mean_r == pytest.approx(d["log_sigma_mean"] - np.log(0.05), abs=1e-9)
+    assert mean_t == pytest.approx(d["log_tau_mean"], abs=1e-9)
+    l1 = float(m.log_likelihood(0.05, 0.6, 0.03, 0.55))
+    l2 = float(m.log_likelihood(0.10, 0.6, 0.06, 0.55))
+    assert l2 == pytest.approx(l1 - np.log(2.0), abs=1e-9)  # σ scales: the density in σ̂ picks up the Jacobian 1/2
+    g = jax.grad(lambda st: m.log_likelihood(st[0], st[1], 0.03, 0.55))(jax.numpy.array([0.05, 0.6]))
+    assert np.all(np.isfinite(np.asarray(g)))

@@ -14,7 +14,15 @@ from ._fit import FitResult, fit_least_squares
 from ._forward import CallableForward, ForwardModel
 from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
 from ._posterior import LogPosterior, PosteriorResult, corner_plot, sample_posterior, save_netcdf
-from ._profilometer import SIGMA_DEFINITIONS, Profilometer, log_likelihood_of_reading, profile_roughness, smoothed_gaussian_statistics
+from ._profilometer import (
+    SIGMA_DEFINITIONS,
+    Profilometer,
+    ReadingModel,
+    build_reading_model,
+    log_likelihood_of_reading,
+    profile_roughness,
+    smoothed_gaussian_statistics,
+)
 from ._registry import make_forward, register_forward
 from ._tilt_measurement import apparent_tilt_deg, fit_gamma, gamma_fit_sd, platelets_for_sd, tilt_fit_distribution
 from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerSettings, direct_tracer, tracer_emulator, tracer_info
@@ -22,6 +30,8 @@ from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerS
 __all__ = [
     "SIGMA_DEFINITIONS",
     "Profilometer",
+    "ReadingModel",
+    "build_reading_model",
     "log_likelihood_of_reading",
     "profile_roughness",
     "smoothed_gaussian_statistics",

@@ -5,7 +5,8 @@ error_sd_j² (instrument repeatability, 0.3 L* by default, plus the forward mode
 emulator's held-out RMS), and minimised over the unconstrained coordinates u of the free
 parameters (`ParameterSpec`). Several starts (scrambled Sobol points of the prior box, plus an
 optional user start) run as one vmapped solve with ``throw=False``; failed or non-finite starts
-are recorded and skipped, and the lowest χ² among converged starts wins.
+are recorded, and the lowest χ² over all starts wins: a start that stopped at the step limit while
+still going downhill is continued from where it stopped (`continuations`), not discarded.
 
 Covariance: J = ∂r/∂x at the optimum in *physical* units (chain rule through the bijection),
 C = s² (JᵀJ)⁺ with s² = max(1, χ²/(n − p)) when n > p and s² = 1 otherwise (the Birge-ratio
@@ -102,6 +103,8 @@ class FitResult:
             "n_converged": self.n_converged,
             "discrepancy": self.discrepancy,
             "at_bound": list(self.at_bound),
+            "p_value": self.p_value,
+            "verdict": self.fit_verdict(),
             "seconds": self.seconds,
         }
 
@@ -113,7 +116,26 @@ class FitResult:
             lines.append(f"  {n:>12} = {self.values[n]:.4g} ± {self.stderr[n]:.2g}{flag}")
         if self.discrepancy is not None:
             lines.append(f"  {'discrepancy':>12} ≈ {self.discrepancy:.3g} L* (moment estimate)")
+        lines.append("  " + self.fit_verdict())
         return "\n".join(lines)
+
+    @property
+    def p_value(self) -> float | None:
+        """P(χ² ≥ observed) for the fit's degrees of freedom under the stated noise; None without dof."""
+        from scipy.stats import chi2 as chi2_dist
+
+        return float(chi2_dist.sf(self.chi2, self.dof)) if self.dof > 0 else None
+
+    def fit_verdict(self) -> str:
+        """One plain sentence on whether the model fits the data and what the standard errors mean."""
+        if self.dof <= 0:
+            return (f"{self.dof} degrees of freedom: as many free parameters as weighted angles, so the fit can follow any data and "
+                    "its χ² cannot test the model; the standard errors are not inflated (fix parameters, or use the posterior)")
+        p = self.p_value
+        if p < 0.01:
+            return (f"the model does NOT fit these data within their stated noise (χ² = {self.chi2:.3g} for {self.dof} dof, p = {p:.2g}); "
+                    f"the standard errors are inflated by √(χ²/dof) = {np.sqrt(self.scale2):.3g}, which assumes the misfit is noise")
+        return f"the fit is consistent with the stated noise (χ² = {self.chi2:.3g} for {self.dof} dof, p = {p:.2g})"
 
 
 def check_measured(measured, m: int, name: str = "measured") -> np.ndarray:
@@ -192,6 +214,7 @@ def fit_least_squares(
     x0: Mapping[str, float] | None = None,
     seed: int = 0,
     max_steps: int = 200,
+    continuations: int = 3,
     rtol: float = 1e-6,
     atol: float = 1e-6,
     jacobian: str = "fd",
@@ -211,6 +234,8 @@ def fit_least_squares(
         x0: optional extra start (physical values of the free parameters).
         seed: seed of the start design.
         max_steps, rtol, atol: Optimistix LM settings.
+        continuations: at most this many further rounds of `max_steps` for the lowest-χ² start when it
+            stopped at the step limit away from the box edge (its status says so).
         jacobian: ``"fd"`` (central differences of the compiled batched forward; default, no
             extra compilation, works for non-differentiable forwards) or ``"ad"`` (jacfwd).
 
@@ -247,8 +272,20 @@ def fit_least_squares(
     with _ACTIVE_LOCK:
         _ACTIVE["f"], _ACTIVE["j"] = fwd, jac_np
         u_all, codes = solve(jnp.asarray(u0), args)
-        u_all, codes = np.asarray(u_all), np.asarray(codes).reshape(-1)
-        r_all = np.asarray(jax.vmap(residual, in_axes=(0, None))(jnp.asarray(u_all), args))
+        u_all, codes = np.array(u_all), np.array(codes).reshape(-1)
+        r_all = np.array(jax.vmap(residual, in_axes=(0, None))(jnp.asarray(u_all), args))
+        # The lowest χ² over *all* starts, converged or not: a start that ran out of steps while still
+        # going downhill is continued (up to `continuations` more rounds of max_steps) rather than dropped.
+        continued = np.zeros(len(u_all), dtype=int)
+        for _ in range(int(continuations)):
+            chi2_all = np.sum(r_all**2, axis=1)
+            lowest = int(np.argmin(np.where(np.isfinite(chi2_all), chi2_all, np.inf)))
+            if codes[lowest] not in (1, 7) or (np.abs(u_all[lowest]) > _U_EDGE).any():
+                break
+            u2, c2 = solve(jnp.asarray(u_all[lowest][None]), args)
+            u_all[lowest], codes[lowest] = np.asarray(u2)[0], int(np.asarray(c2).reshape(-1)[0])
+            r_all[lowest] = np.asarray(residual(jnp.asarray(u_all[lowest]), args))
+            continued[lowest] += 1
         # Jacobians are taken at u clipped to the edge band: at a boundary optimum (u → ±∞) the
         # logit map's derivative underflows to 0 and ∂r/∂x could not be recovered from ∂r/∂u.
         u_jac_all = np.clip(u_all, -_U_EDGE, _U_EDGE)
@@ -266,10 +303,12 @@ def fit_least_squares(
         if st:
             msg = "converged to the bound of " + ", ".join(n for n, flag in zip(sub.names, e) if flag)
         starts.append({"x": sub.as_dict(np.asarray(sub.from_unconstrained(u))), "chi2": float(c), "status": msg})
-    pool = np.where(ok)[0] if ok.any() else np.where(np.isfinite(chi2_all))[0]
-    if pool.size == 0:
+    for i in np.flatnonzero(continued):
+        starts[i]["status"] += f" (continued {continued[i]} × {max_steps} steps from the step limit)"
+    finite = np.flatnonzero(np.isfinite(chi2_all))
+    if finite.size == 0:
         raise ValueError("every least-squares start failed (non-finite residuals); check the measured values and bounds")
-    best = int(pool[np.argmin(chi2_all[pool])])
+    best = int(finite[np.argmin(chi2_all[finite])])
     u_best, u_jac = u_all[best], u_jac_all[best]
     x_best = np.asarray(sub.from_unconstrained(u_best))
     # Jacobian in physical units: ∂r/∂x = ∂r/∂u · (∂x/∂u)^-1 (the bijection is elementwise).

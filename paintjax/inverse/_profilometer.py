@@ -18,7 +18,8 @@ measurement campaign reads. Three readings of the σ definition are offered (`SI
 * ``"scan_pv"``: the RMS over the platelets of each scan's total peak-to-valley height (Rt).
 
 `campaign_distribution` gives the sampling distribution of a campaign's (σ̂, τ̂) for a true (σ, τ);
-its spread is the likelihood of the published values.
+`ReadingModel` (from `build_reading_model`) makes it a smooth, jittable likelihood of the published
+reading over the true (σ, τ), for the inverse layer.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import math
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ..wave._profiles import LineScan, process_line_scan, profile_statistics, synthesize_profiles
@@ -197,6 +199,98 @@ class Profilometer(eqx.Module):
             "platelet_tau_sd_um": float(np.mean([r["platelet_tau_um"].std(ddof=1) for r in runs])),
             "by_definition": by_def,
         }
+
+
+class ReadingModel(eqx.Module):
+    """The sampling distribution of a campaign's reading (σ̂, τ̂) as a smooth function of the true (σ, τ).
+
+    Heights scale with σ through every step of the procedure (PSF, filter, levelling are linear, and
+    the three σ readings are homogeneous of degree one), and the 1/e length does not depend on σ at
+    all. So σ̂ = σ ρ with a random ratio ρ whose law, like τ̂'s, depends on τ only: the model stores,
+    at log-spaced τ nodes, the mean and SD of log ρ (per σ reading), of log τ̂, and their correlation,
+    and interpolates them in log τ. `log_likelihood` is a bivariate normal in (log σ̂, log τ̂),
+    jittable and differentiable in (σ, τ). Build it with `build_reading_model`.
+    """
+
+    log_tau_nodes: np.ndarray
+    log_ratio_mean: dict
+    log_ratio_sd: dict
+    log_correlation: dict
+    log_tau_hat_mean: np.ndarray
+    log_tau_hat_sd: np.ndarray
+
+    def moments(self, tau_um, definition: str = "rq"):
+        """(mean log ρ, SD log ρ, mean log τ̂, SD log τ̂, correlation) at true τ, for a σ reading."""
+        if definition not in SIGMA_DEFINITIONS:
+            raise ValueError(f"definition must be one of {SIGMA_DEFINITIONS}, got {definition!r}")
+        x = jnp.log(jnp.asarray(tau_um))
+        f = lambda v: jnp.interp(x, jnp.asarray(self.log_tau_nodes), jnp.asarray(v))  # noqa: E731
+        return (f(self.log_ratio_mean[definition]), f(self.log_ratio_sd[definition]), f(self.log_tau_hat_mean),
+                f(self.log_tau_hat_sd), f(self.log_correlation[definition]))
+
+    def log_likelihood(self, sigma_um, tau_um, sigma_hat_um, tau_hat_um, definition: str = "rq"):
+        """log p(σ̂, τ̂ | σ, τ): the density of a published campaign reading given the true surface.
+
+        Arguments:
+            sigma_um, tau_um: the true surface (broadcast together; τ inside the node range).
+            sigma_hat_um, tau_hat_um: the reading.
+            definition: the σ reading (`SIGMA_DEFINITIONS`).
+        """
+        m_r, s_r, m_t, s_t, r = self.moments(tau_um, definition)
+        zs = (jnp.log(sigma_hat_um) - jnp.log(sigma_um) - m_r) / s_r
+        zt = (jnp.log(tau_hat_um) - m_t) / s_t
+        r = jnp.clip(r, -0.99, 0.99)
+        q = (zs**2 - 2.0 * r * zs * zt + zt**2) / (1.0 - r**2)
+        return -0.5 * q - jnp.log(2.0 * jnp.pi * s_r * s_t * jnp.sqrt(1.0 - r**2)) - jnp.log(sigma_hat_um * tau_hat_um)
+
+
+#: Bumped when the reading model's construction changes (part of its cache key).
+READING_MODEL_VERSION = 1
+
+
+def build_reading_model(profilometer: Profilometer | None = None, *, tau_nodes_um=None, campaigns: int = 64, seed: int = 0,
+                        cache_dir=None, use_cache: bool = True, progress: bool = False) -> ReadingModel:
+    """Simulate the campaign reading at log-spaced true τ (σ = 50 nm, which only scales) and cache it.
+
+    Arguments:
+        profilometer: the instrument and procedure (default `Profilometer()`).
+        tau_nodes_um: true τ nodes (default 16 log-spaced in 0.2–2.5 µm).
+        campaigns: simulated campaigns per node.
+        seed: the random stream.
+        cache_dir: on-disk cache folder (None: `$PAINTJAX_CACHE`); `use_cache` False builds afresh.
+        progress: print a line per node to stderr.
+    """
+    import sys
+
+    from .._cache import cached_arrays
+
+    prof = Profilometer() if profilometer is None else profilometer
+    nodes = np.geomspace(0.2, 2.5, 16) if tau_nodes_um is None else np.asarray(tau_nodes_um, float)
+    if nodes.ndim != 1 or nodes.size < 2 or np.any(np.diff(nodes) <= 0):
+        raise ValueError(f"tau_nodes_um must be at least 2 increasing values, got {tau_nodes_um!r}")
+    ref = 0.05
+
+    def build():
+        out = {"log_tau_hat_mean": [], "log_tau_hat_sd": []}
+        for d in SIGMA_DEFINITIONS:
+            out |= {f"mean_{d}": [], f"sd_{d}": [], f"corr_{d}": []}
+        for j, t in enumerate(nodes):
+            dist = prof.campaign_distribution(jax.random.fold_in(jax.random.PRNGKey(seed), j), ref, float(t), campaigns)
+            out["log_tau_hat_mean"].append(dist["log_tau_mean"])
+            out["log_tau_hat_sd"].append(dist["log_tau_sd"])
+            for d, v in dist["by_definition"].items():
+                out[f"mean_{d}"].append(v["log_sigma_mean"] - np.log(ref))
+                out[f"sd_{d}"].append(v["log_sigma_sd"])
+                out[f"corr_{d}"].append(v["log_correlation"])
+            if progress:
+                print(f"  reading model: τ = {t:.3f} µm → τ̂ {np.exp(dist['log_tau_mean']):.3f} µm", file=sys.stderr, flush=True)
+        return {k: np.asarray(v) for k, v in out.items()}
+
+    inputs = {"version": READING_MODEL_VERSION, "profilometer": [prof.resolution_um, prof.pixel_um, int(prof.num_platelets),
+              list(prof.scan_range_um), prof.cutoff_fraction], "tau_nodes_um": nodes.tolist(), "campaigns": int(campaigns), "seed": int(seed)}
+    a, _ = cached_arrays("roughness-reading-model", inputs, build, folder=cache_dir, use_cache=use_cache)
+    return ReadingModel(np.log(nodes), {d: a[f"mean_{d}"] for d in SIGMA_DEFINITIONS}, {d: a[f"sd_{d}"] for d in SIGMA_DEFINITIONS},
+                        {d: a[f"corr_{d}"] for d in SIGMA_DEFINITIONS}, a["log_tau_hat_mean"], a["log_tau_hat_sd"])
 
 
 def log_likelihood_of_reading(stats: dict, sigma_hat_um: float, tau_hat_um: float) -> float:
