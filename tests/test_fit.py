@@ -224,3 +224,26 @@ def test_emulator_design_resumes_from_checkpoint(tmp_path):
     assert em.error_sd.shape == (5,)
     with pytest.raises(ValueError, match="source must identify fn"):
         build_emulator(fn, spec, n_train=16, n_test=8, cache_dir=None)
+
+
+def test_a_start_stopped_at_the_step_limit_is_continued_not_dropped():
+    """With a 3-step budget no start converges; the lowest-χ² start is continued from where it stopped
+    (its status says so) and reaches the truth, instead of the fit reporting an unconverged start."""
+    y = _truth_curve()
+    short = fit_least_squares(MIRROR, y, free=("shape", "scale", "diffuse"), n_starts=4, seed=1, max_steps=3, continuations=0)
+    fr = fit_least_squares(MIRROR, y, free=("shape", "scale", "diffuse"), n_starts=4, seed=1, max_steps=3, continuations=30)
+    assert not short.success and short.chi2 > fr.chi2
+    assert any("continued" in s["status"] for s in fr.starts)
+    assert fr.chi2 == min(s["chi2"] for s in fr.starts if np.isfinite(s["chi2"]))  # the lowest over all starts
+    assert fr.values["shape"] == pytest.approx(TRUTH["shape"], rel=1e-3)
+
+
+def test_fit_verdict_says_whether_the_model_fits():
+    y = _truth_curve()
+    good = fit_least_squares(MIRROR, y + np.array([0.2, -0.1, 0.1, -0.2, 0.1]), free=("shape", "scale"), fixed={"diffuse": 0.15}, n_starts=3)
+    assert good.p_value > 0.01 and "consistent" in good.fit_verdict()
+    bad = fit_least_squares(MIRROR, y + np.array([6.0, -6.0, 6.0, -6.0, 6.0]), free=("shape", "scale"), fixed={"diffuse": 0.15}, n_starts=3)
+    assert bad.p_value < 0.01 and "does NOT fit" in bad.fit_verdict() and bad.scale2 > 1
+    assert "NOT fit" in bad.summary() and bad.to_dict()["verdict"] == bad.fit_verdict()
+    zero = fit_least_squares(MIRROR, y, free=("shape", "scale", "diffuse"), weights=[1, 1, 1, 0, 0], n_starts=3)
+    assert zero.dof == 0 and zero.p_value is None and "cannot test the model" in zero.fit_verdict()
