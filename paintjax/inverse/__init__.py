@@ -12,6 +12,7 @@ from ._design import DesignResult, design_to_target
 from ._emulator import Emulator, build_emulator, emulator_check, fit_emulator
 from ._fit import FitResult, fit_least_squares
 from ._forward import CallableForward, ForwardModel
+from ._measured_inputs import MeasuredInputs, posterior_predictive_check
 from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
 from ._posterior import LogPosterior, PosteriorResult, corner_plot, sample_posterior, save_netcdf
 from ._profilometer import (
@@ -28,6 +29,8 @@ from ._tilt_measurement import apparent_tilt_deg, fit_gamma, gamma_fit_sd, plate
 from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerSettings, direct_tracer, tracer_emulator, tracer_info
 
 __all__ = [
+    "MeasuredInputs",
+    "posterior_predictive_check",
     "SIGMA_DEFINITIONS",
     "Profilometer",
     "ReadingModel",

@@ -5,7 +5,9 @@ instrument repeatability (0.3 L*), δ the model-discrepancy scale (a free parame
 half-Cauchy(5 L*) prior, or fixed) and e_j the forward model's own error (`error_sd`: zero for
 the analytic model, the held-out RMS for an emulator). Priors: the weak priors of
 `paintjax.inverse._parameters` (log-uniform for tilt shape/scale and roughness σ/τ over their boxes,
-uniform for bounded fractions, half-Cauchy for δ) — none centred on the measured values.
+uniform for bounded fractions, half-Cauchy for δ) — none centred on the measured values. The
+published inputs can enter as data instead (`inputs=`, a `MeasuredInputs`: their likelihood given the
+true parameters through models of the measurements that produced them).
 
 Sampling is in the unconstrained coordinates u (the prior carries the log-Jacobian) with
 `emcee.EnsembleSampler(vectorize=True)`: the whole ensemble is one batched, compiled forward
@@ -128,8 +130,10 @@ class LogPosterior:
         forward, measured, free, fixed, bounds, instrument_sd: as in `sample_posterior`.
     """
 
-    def __init__(self, forward: ForwardModel, measured, free, fixed=None, bounds=None, instrument_sd: float = INSTRUMENT_SD, chunk: int = 16):
+    def __init__(self, forward: ForwardModel, measured, free, fixed=None, bounds=None, instrument_sd: float = INSTRUMENT_SD, chunk: int = 16,
+                 inputs=None):
         self.forward = forward
+        self.inputs = inputs
         self.chunk = int(chunk)
         self.measured = check_measured(measured, len(forward.aspecular_deg))
         check_instrument_sd(instrument_sd)
@@ -159,6 +163,7 @@ class LogPosterior:
         d_fixed = float(self.fixed.get("discrepancy", 0.0))
         y = jnp.asarray(self.measured)
         var0 = jnp.asarray(self.instrument_sd**2 + np.asarray(self.forward.error_sd) ** 2)
+        inputs, fixed_inputs = self.inputs, dict(self.restricted.fixed)
 
         @jax.jit
         def rest(U, L):
@@ -167,6 +172,10 @@ class LogPosterior:
             var = var0[None, :] + delta[:, None] ** 2
             ll = -0.5 * jnp.sum((L - y) ** 2 / var + jnp.log(2.0 * jnp.pi * var), axis=-1)
             lp = ll + spec.log_prior_unconstrained(U)
+            if inputs is not None:  # the published inputs as data (`MeasuredInputs`)
+                params = {n: jnp.full(U.shape[0], float(v)) for n, v in fixed_inputs.items()}
+                params |= {n: x[:, spec.index(n)] for n in spec.names}
+                lp = lp + inputs.log_likelihood(params)
             return jnp.where(jnp.isfinite(lp), lp, -jnp.inf)
 
         fwd = batched_forward(self.restricted, sub, self.chunk)
@@ -211,7 +220,8 @@ def _pool_size(pool) -> int:
 def _meta(lp: LogPosterior, walkers: int) -> str:
     return json.dumps({"names": lp.names, "measured": lp.measured.tolist(), "forward": lp.forward.fingerprint(),
                        "fixed": lp.restricted.fixed, "fixed_discrepancy": lp.fixed.get("discrepancy"),
-                       "bounds": lp.spec.fingerprint(), "instrument_sd": lp.instrument_sd, "walkers": walkers}, sort_keys=True)
+                       "bounds": lp.spec.fingerprint(), "instrument_sd": lp.instrument_sd, "walkers": walkers,
+                       "inputs": None if lp.inputs is None else lp.inputs.fingerprint()}, sort_keys=True)
 
 
 def sample_posterior(
@@ -235,6 +245,7 @@ def sample_posterior(
     progress: bool = True,
     pool=None,
     inference_data: bool = True,
+    inputs=None,
 ) -> PosteriorResult:
     """Sample the posterior of the free parameters with emcee (vectorised, resumable).
 
@@ -258,6 +269,8 @@ def sample_posterior(
         pool: optional pool with a `map` method (multiprocessing, MPI); the ensemble is split
             over its workers.
         inference_data: build the ArviZ InferenceData (`idata`; skip for speed in bulk studies).
+        inputs: the published inputs as data (`MeasuredInputs`): their log-likelihood given the sampled
+            parameters is added to the posterior (None: the inputs enter only through the prior box).
 
     Returns:
         A `PosteriorResult`.
@@ -274,7 +287,7 @@ def sample_posterior(
     from ._fit import CHUNK
 
     # Same chunk as least squares (one compiled forward) unless half an ensemble is larger.
-    lp = LogPosterior(forward, measured, free, fixed, bounds, instrument_sd, chunk=max(CHUNK, walkers // 2))
+    lp = LogPosterior(forward, measured, free, fixed, bounds, instrument_sd, chunk=max(CHUNK, walkers // 2), inputs=inputs)
     p = len(lp.names)
     if walkers < 2 * p or walkers % 2:
         raise ValueError(f"walkers must be even and >= 2 × {p} parameters = {2 * p}, got {walkers}")

@@ -1,0 +1,151 @@
+"""The measured inputs as data: their likelihood given the true microstructure, and the consistency check.
+
+`MeasuredInputs` turns the published roughness reading and tilt law into a log-likelihood of the
+true (σ, τ, shape, scale): the roughness through the virtual profilometer's `ReadingModel` (what the
+published procedure reads on a true surface), the tilt law as a maximum-likelihood gamma fit to a
+stated count of measured platelets (`gamma_fit_sd`: Fisher covariance at the true law). Added to the
+L* likelihood in `sample_posterior(..., inputs=...)`, the posterior weighs what the inputs and the
+L* each say. `posterior_predictive_check` asks whether the L* are what the posterior expects.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax.scipy.special import polygamma
+
+from ._profilometer import SIGMA_DEFINITIONS, ReadingModel
+
+
+class MeasuredInputs(eqx.Module):
+    """Likelihood of a sample's published inputs given the true microstructure (jittable).
+
+    Fields: `reading` (the roughness `ReadingModel`, or None to leave σ, τ to the prior) with the
+    published reading `sigma_hat_um`, `tau_hat_um` under the σ `definition`; the published tilt law
+    `shape_hat`, `scale_hat` fitted to `tilt_platelets` measured tilts (0: tilt law left to the prior).
+    """
+
+    reading: ReadingModel | None
+    sigma_hat_um: float = eqx.field(static=True)
+    tau_hat_um: float = eqx.field(static=True)
+    definition: str = eqx.field(static=True)
+    shape_hat: float = eqx.field(static=True)
+    scale_hat: float = eqx.field(static=True)
+    tilt_platelets: int = eqx.field(static=True)
+
+    def __check_init__(self):
+        if self.definition not in SIGMA_DEFINITIONS:
+            raise ValueError(f"definition must be one of {SIGMA_DEFINITIONS}, got {self.definition!r}")
+        if int(self.tilt_platelets) != self.tilt_platelets or not 0 <= self.tilt_platelets <= 1_000_000:
+            raise ValueError(f"tilt_platelets must be an integer in [0, 1000000] (0: no tilt measurement), got {self.tilt_platelets!r}")
+        for name in ("sigma_hat_um", "tau_hat_um", "shape_hat", "scale_hat"):
+            v = float(getattr(self, name))
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {v!r}")
+
+    @classmethod
+    def for_sample(cls, sample, reading: ReadingModel | None, *, definition: str = "rq", tilt_platelets: int = 200) -> MeasuredInputs:
+        """The published inputs of a reference sample (`load_sample`)."""
+        return cls(reading, float(sample.sigma.value), float(sample.tau.value), definition, float(sample.tilt_shape.value),
+                   float(sample.tilt_scale.value), int(tilt_platelets))
+
+    def fingerprint(self) -> str:
+        """Identity for chain metadata (a chain sampled with other inputs is not resumed)."""
+        nodes = None if self.reading is None else np.round(np.asarray(self.reading.log_tau_hat_mean), 6).tolist()
+        return repr((self.sigma_hat_um, self.tau_hat_um, self.definition, self.shape_hat, self.scale_hat, self.tilt_platelets, nodes))
+
+    def tilt_moments(self, shape, scale):
+        """(SD of k̂, SD of θ̂, their correlation) of a gamma fit to `tilt_platelets` true tilts."""
+        k, th, n = jnp.asarray(shape), jnp.asarray(scale), float(self.tilt_platelets)
+        t = polygamma(1, k)
+        d = k * t - 1.0
+        return jnp.sqrt(k / (n * d)), jnp.sqrt(th**2 * t / (n * d)), -1.0 / jnp.sqrt(k * t)
+
+    def log_likelihood(self, params: dict):
+        """log p(published inputs | true parameters) for the parameters present in `params` (arrays)."""
+        total = 0.0
+        if self.reading is not None and "sigma" in params and "tau" in params:
+            total = total + self.reading.log_likelihood(params["sigma"], params["tau"], self.sigma_hat_um, self.tau_hat_um, self.definition)
+        if self.tilt_platelets > 0 and "shape" in params and "scale" in params:
+            sk, st, r = self.tilt_moments(params["shape"], params["scale"])
+            zk = (self.shape_hat - params["shape"]) / sk
+            zt = (self.scale_hat - params["scale"]) / st
+            q = (zk**2 - 2.0 * r * zk * zt + zt**2) / (1.0 - r**2)
+            total = total - 0.5 * q - jnp.log(2.0 * jnp.pi * sk * st * jnp.sqrt(1.0 - r**2))
+        return total
+
+    def shift_table(self, draws: dict) -> dict:
+        """Each published input against what the posterior implies it should read, in units of its SD.
+
+        Arguments:
+            draws: posterior draws per parameter name (arrays).
+
+        Returns:
+            per input: the published value, the posterior median of the reading the true parameter would
+            give, and z = (published − expected reading) / reading SD, averaged over the draws.
+        """
+        out = {}
+        if self.reading is not None and "sigma" in draws and "tau" in draws:
+            s, t = np.asarray(draws["sigma"]), np.asarray(draws["tau"])
+            m_r, s_r, m_t, s_t, _ = (np.asarray(v) for v in self.reading.moments(t, self.definition))
+            out["sigma"] = {"published": self.sigma_hat_um, "expected_reading": float(np.median(np.exp(np.log(s) + m_r))),
+                            "true_median": float(np.median(s)), "z": float(np.mean((np.log(self.sigma_hat_um) - np.log(s) - m_r) / s_r))}
+            out["tau"] = {"published": self.tau_hat_um, "expected_reading": float(np.median(np.exp(m_t))), "true_median": float(np.median(t)),
+                          "z": float(np.mean((np.log(self.tau_hat_um) - m_t) / s_t))}
+        if self.tilt_platelets > 0 and "shape" in draws and "scale" in draws:
+            k, th = np.asarray(draws["shape"]), np.asarray(draws["scale"])
+            sk, st, _ = (np.asarray(v) for v in self.tilt_moments(k, th))
+            out["shape"] = {"published": self.shape_hat, "expected_reading": float(np.median(k)), "true_median": float(np.median(k)),
+                            "z": float(np.mean((self.shape_hat - k) / sk))}
+            out["scale"] = {"published": self.scale_hat, "expected_reading": float(np.median(th)), "true_median": float(np.median(th)),
+                            "z": float(np.mean((self.scale_hat - th) / st))}
+        return out
+
+
+def posterior_predictive_check(result, forward, measured, *, fixed=None, instrument_sd: float = 0.3, max_draws: int = 400,
+                               seed: int = 0) -> dict:
+    """Posterior-predictive check of the L*: are the measured values what the posterior expects?
+
+    For posterior draws θ_i (with their discrepancy δ_i, or the fixed one), the χ² of the measured L*
+    about the model curve, T_i = Σ_j (y_j − L_j(θ_i))² / s_ij², s² = σ_instr² + e_j² + δ_i², is compared
+    with that of replicated data, which is χ² with m degrees of freedom given θ_i:
+    p = mean_i P(χ²_m ≥ T_i). A small p (≲ 0.01) says the model with these inputs and errors does not
+    produce data like the measured ones.
+
+    Returns:
+        dict with "p_value", "chi2_median" (of T_i), the predictive band "L_star_q05", "L_star_q50",
+        "L_star_q95" (replicated data), and "draws" used.
+    """
+    from scipy.stats import chi2 as chi2_dist
+
+    names = result.names
+    S = np.asarray(result.samples)
+    rng = np.random.default_rng(seed)
+    idx = rng.choice(S.shape[0], size=min(int(max_draws), S.shape[0]), replace=False)
+    S = S[idx]
+    fixed = dict(fixed or {})
+    cols = {n: S[:, names.index(n)] for n in names}
+    missing = [n for n in forward.parameter_names if n not in cols and n not in fixed]
+    if missing:
+        raise ValueError(f"fixed must give the forward inputs that were not sampled: {', '.join(missing)}")
+    X = np.stack([cols[n] if n in cols else np.full(len(S), float(fixed[n])) for n in forward.parameter_names], axis=1)
+    L = _evaluate(forward, X)
+    y = np.asarray(measured, float)
+    delta = cols.get("discrepancy", np.full(len(S), float(fixed.get("discrepancy", 0.0))))
+    var = float(instrument_sd) ** 2 + np.asarray(forward.error_sd, float) ** 2 + delta[:, None] ** 2
+    T = np.sum((y - L) ** 2 / var, axis=1)
+    rep = L + rng.standard_normal(L.shape) * np.sqrt(var)
+    return {"p_value": float(np.mean(chi2_dist.sf(T, y.size))), "chi2_median": float(np.median(T)),
+            "L_star_q05": np.quantile(rep, 0.05, axis=0), "L_star_q50": np.quantile(rep, 0.5, axis=0),
+            "L_star_q95": np.quantile(rep, 0.95, axis=0), "draws": int(len(S))}
+
+
+def _evaluate(forward, X: np.ndarray, chunk: int = 16) -> np.ndarray:
+    """The forward model over rows of X in fixed chunks (one compilation)."""
+    out = []
+    for i in range(0, len(X), chunk):
+        part = X[i:i + chunk]
+        pad = np.concatenate([part, np.repeat(part[-1:], chunk - len(part), axis=0)]) if len(part) < chunk else part
+        out.append(np.asarray(forward(pad))[: len(part)])
+    return np.concatenate(out)
