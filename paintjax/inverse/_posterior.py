@@ -275,7 +275,6 @@ def sample_posterior(
     Returns:
         A `PosteriorResult`.
     """
-    import arviz as az
     import emcee
 
     t0 = time.perf_counter()

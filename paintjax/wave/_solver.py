@@ -269,6 +269,13 @@ def _check_scalar(name: str, value, lo: float, hi: float) -> float:
     return v
 
 
+def _medium(wavelength_um, n_medium, boundary, polarization, metal_index):
+    """Validated wavelength and binder index, the boundary's channels and the wavenumber k in the binder."""
+    wavelength_um = _check_scalar("wavelength_um", wavelength_um, 0.0, 20.0)
+    n_medium = _check_scalar("n_medium", n_medium, 0.0, 5.0)
+    return wavelength_um, n_medium, channels(boundary, polarization, metal_index, n_medium, wavelength_um), 2.0 * math.pi * n_medium / wavelength_um
+
+
 def quadrature_points(k: float, length_um: float) -> int:
     """Gauss–Legendre nodes in θ_s used for ∫σ dθ_s (resolves the far-field bandwidth kL)."""
     return int(math.ceil(k * length_um * math.pi / 4.0)) + 64
@@ -309,10 +316,7 @@ def solve_profiles(
     Returns:
         `WaveLobes`.
     """
-    wavelength_um = _check_scalar("wavelength_um", wavelength_um, 0.0, 20.0)
-    n_medium = _check_scalar("n_medium", n_medium, 0.0, 5.0)
-    chans = channels(boundary, polarization, metal_index, n_medium, wavelength_um)
-    k = 2.0 * math.pi * n_medium / wavelength_um
+    wavelength_um, n_medium, chans, k = _medium(wavelength_um, n_medium, boundary, polarization, metal_index)
     n = int(profiles.x.shape[0])
     dx = float(profiles.spacing)
     length = n * dx
@@ -383,10 +387,7 @@ def scattering_amplitudes(
     incidence (the surface ends are then lit: use for reciprocity of the discrete operator, not
     for σ). Channels as in `channels` (TE first).
     """
-    wavelength_um = _check_scalar("wavelength_um", wavelength_um, 0.0, 20.0)
-    n_medium = _check_scalar("n_medium", n_medium, 0.0, 5.0)
-    chans = channels(boundary, polarization, metal_index, n_medium, wavelength_um)
-    k = 2.0 * math.pi * n_medium / wavelength_um
+    wavelength_um, n_medium, chans, k = _medium(wavelength_um, n_medium, boundary, polarization, metal_index)
     n, dx = int(profiles.x.shape[0]), float(profiles.spacing)
     g = n * dx / 4.0 if taper_um is None else float(taper_um)
     if not g > 0:
