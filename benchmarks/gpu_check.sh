@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One prepared device check for a session that is lent a GPU (the project never needs one):
+# One prepared device check for a machine with a GPU (the project never needs one):
 # benchmarks/tracer.py on the accelerator (rays/s, time to L* SE <= 0.3 at all five angles over three
 # seeds, forward-alone and plain vmap(while_loop) ratios), then the tracer's validation tests there.
 #

@@ -4,9 +4,10 @@
   each whole platelet of 10–30 µm, Gaussian filter with a cutoff of 50 % of the scan length,
   end-point levelling; σ the RMS over the platelets, τ the 1/e autocorrelation length) runs on
   synthesised Gaussian surfaces of known true (σ, τ) (`paintjax.inverse.Profilometer`, PSF FWHM
-  0.55 µm, pixel 0.1 µm). For each of three readings of the σ definition it maps true → measured over
-  σ 15–150 nm × τ 0.25–2 µm, and turns the published reading (51 nm, 640 nm) into a likelihood over the
-  true (σ, τ): where do the true surfaces lie that read as published?
+  0.55 µm, pixel 0.1 µm). σ only scales the reading, so its law is simulated at 16 true τ in
+  0.2–2.5 µm (`build_reading_model`); for each of three readings of the σ definition the published
+  reading (51 nm, 640 nm) becomes a likelihood over the true (σ, τ): where do the true surfaces lie
+  that read as published?
 * *Instrument and procedure.* At the published point: what an ideal instrument, the PSF and the filter
   each do to the reading; the predicted spread across the 10 platelets against the published ±.
 * *Tilt law.* The sampling SD of a gamma fit to n measured tilts (closed form and simulation), the
