@@ -73,10 +73,10 @@ def plot(out: dict, path: Path) -> Path:
         for (label, run), c in zip(list(panel["runs"].items())[:2], ("C0", "C1")):
             d = run["draws"]
             ax.plot(1000 * np.asarray(d["sigma"]), np.asarray(d["tau"]), ".", color=c, ms=1.5, alpha=0.4, label=label)
-        ax.plot(51, 0.64, "r*", ms=12, label="published reading")
+        ax.plot(51, 0.64, "r*", ms=5, label="published reading")
         ax.set_xscale("log"), ax.set_yscale("log")
         ax.set_xlabel("σ [nm]"), ax.set_ylabel("τ [µm]"), ax.set_title(f"{name}: posterior draws of the true σ, τ", fontsize=9)
-        ax.legend(fontsize=7, markerscale=6)
+        ax.legend(fontsize=7, markerscale=3)
     fig.suptitle("Posteriors with measurement models for the inputs (python experiments/calibrated_posterior.py)", fontsize=10)
     fig.tight_layout()
     res = atomic_savefig(fig, path, dpi=130)
