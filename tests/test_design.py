@@ -77,6 +77,13 @@ def test_cli_design_and_fit(capsys):
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and set(out["posterior"]) >= {"mean", "q05", "q95", "tau_int"}
     assert set(out["posterior"]["mean"]) >= {"shape", "scale", "diffuse", "discrepancy", "mean_tilt"}
+    assert 0.0 <= out["posterior"]["predictive_p_value"] <= 1.0 and out["posterior"]["inputs"] == "none"
+    # the published tilt law as data (mirror platelets: no σ, τ, so no roughness reading)
+    rc = main(["fit", "--sample", "silver2", "--forward", "analytic-mirror", "--free", "shape,scale,diffuse", "--starts", "3",
+               "--posterior", "--inputs", "rq", "--tilt-platelets", "500", "--walkers", "8", "--max-steps", "60", "--min-ess", "0", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and set(out["posterior"]["input_shift"]) == {"shape", "scale"}
+    assert out["posterior"]["input_shift"]["shape"]["published"] == 2.98
 
 
 def test_cli_errors_are_one_line(capsys):
@@ -86,3 +93,9 @@ def test_cli_errors_are_one_line(capsys):
     assert "--fix shape must be a number" in capsys.readouterr().err
     assert main(["fit", "--sample", "silver9"]) == 2
     assert "unknown sample" in capsys.readouterr().err
+    assert main(["fit", "--sample", "silver1", "--inputs", "rq"]) == 2
+    assert "--inputs applies to --posterior" in capsys.readouterr().err
+    assert main(["fit", "--measured", "143.3,107.2,58.6,37.2,32.1", "--posterior", "--inputs", "rq"]) == 2
+    assert "--inputs needs --sample" in capsys.readouterr().err
+    assert main(["fit", "--sample", "silver1", "--posterior", "--inputs", "rq", "--tilt-platelets", "-3"]) == 2
+    assert "--tilt-platelets" in capsys.readouterr().err

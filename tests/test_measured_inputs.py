@@ -60,5 +60,8 @@ def test_posterior_predictive_check_separates_fit_from_misfit():
     bad = posterior_predictive_check(result, MIRROR, L + np.array([6.0, -6.0, 6.0, -6.0, 6.0]), seed=0)
     assert good["p_value"] > 0.05 and bad["p_value"] < 1e-6
     assert np.all(good["L_star_q05"] < good["L_star_q95"])
-    with pytest.raises(ValueError, match="diffuse"):
-        posterior_predictive_check(types.SimpleNamespace(names=("shape", "scale"), samples=draws[:, :2]), MIRROR, L)
+    # diffuse neither sampled nor fixed: its registered default (0), as in the posterior
+    two = types.SimpleNamespace(names=("shape", "scale"), samples=draws[:, :2])
+    a = posterior_predictive_check(two, MIRROR, L, seed=0)
+    b = posterior_predictive_check(two, MIRROR, L, fixed={"diffuse": 0.0}, seed=0)
+    assert a["p_value"] == b["p_value"]

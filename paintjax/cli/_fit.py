@@ -60,6 +60,12 @@ def register(sub) -> None:
     p.add_argument("--walkers", type=int, default=32, help="emcee walkers (default 32)")
     p.add_argument("--max-steps", type=int, default=20000, help="largest number of emcee steps (default 20000)")
     p.add_argument("--min-ess", type=float, default=1000.0, help="required effective sample size (default 1000)")
+    p.add_argument("--inputs", choices=("none", "rq", "local_pv", "scan_pv"), default="none",
+                   help="with --posterior and --sample: add the sample's published inputs as data, the roughness through the "
+                   "virtual profilometer with σ read as the given definition (rq: RMS height) and the tilt law as a gamma fit to "
+                   "--tilt-platelets measured tilts (docs/input_measurement.md); default none (inputs only through the prior box)")
+    p.add_argument("--tilt-platelets", type=int, default=200,
+                   help="platelets behind the published tilt law, for --inputs (default 200, an assumption; 0: tilt law not used)")
     p.add_argument("--chain", help="HDF5 file of the chain (resumes if compatible); default: none")
     p.add_argument("--out", help="folder for posterior.nc and corner.png (default: none written)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -85,6 +91,12 @@ def compute(args) -> dict:
         raise ValueError(f"--starts must be >= 1, got {args.starts}")
     if args.max_steps < 1:
         raise ValueError(f"--max-steps must be >= 1, got {args.max_steps}")
+    if args.inputs != "none" and not args.posterior:
+        raise ValueError("--inputs applies to --posterior (the published inputs enter the posterior as data)")
+    if args.inputs != "none" and args.measured is not None:
+        raise ValueError("--inputs needs --sample: published inputs belong to a reference sample, not to --measured values")
+    if not 0 <= args.tilt_platelets <= 1_000_000:
+        raise ValueError(f"--tilt-platelets must lie in [0, 1000000], got {args.tilt_platelets}")
     forward = make_forward(args.forward, free, fixed, progress=not args.no_progress and not args.json)
     # Defaults adapt to the model (a mirror model has no σ, τ); explicit --free is taken as given.
     lsq_free = free if args.free is not None else tuple(n for n in free if n in forward.parameter_names or n == "discrepancy")
@@ -115,12 +127,27 @@ def compute(args) -> dict:
         post_fixed = {k: v for k, v in fixed.items() if k in forward.parameter_names or k == "discrepancy"}
         if "discrepancy" not in post_fixed:
             post_free = post_free + ("discrepancy",)
+        inputs = None
+        if args.inputs != "none":
+            from ..inverse._measured_inputs import MeasuredInputs
+            from ..inverse._profilometer import build_reading_model
+
+            rough = {"sigma", "tau"} <= set(forward.parameter_names)  # the roughness reading only where σ, τ are inputs
+            reading = build_reading_model(progress=not args.json) if rough else None
+            inputs = MeasuredInputs.for_sample(s, reading, definition=args.inputs, tilt_platelets=args.tilt_platelets)
         pr = sample_posterior(forward, measured, free=post_free, fixed=post_fixed, walkers=args.walkers, max_steps=args.max_steps,
                               min_steps=min(500, args.max_steps), check_every=min(250, args.max_steps), min_ess=args.min_ess, init=fr, seed=args.seed, backend_path=args.chain,
-                              progress=not args.no_progress and not args.json)
+                              progress=not args.no_progress and not args.json, inputs=inputs)
         d = pr.to_dict()
         out["posterior"] = {k: d[k] for k in ("mean", "q05", "q50", "q95", "tau_int", "n_eff", "steps", "converged", "acceptance",
                                               "L_star_mean", "L_star_q05", "L_star_q95")}
+        from ..inverse._measured_inputs import posterior_predictive_check
+
+        check = posterior_predictive_check(pr, forward, measured, fixed=post_fixed, seed=args.seed)
+        out["posterior"]["predictive_p_value"] = check["p_value"]
+        out["posterior"]["inputs"] = args.inputs
+        if inputs is not None:
+            out["posterior"]["input_shift"] = inputs.shift_table({n: pr.draws(n) for n in pr.names})
         out["_posterior"] = pr
         if args.out:
             from pathlib import Path
@@ -147,5 +174,13 @@ def run(args) -> int:
         print(f"{a:>9}° {m:>9.1f} {f:>8.1f} {f - m:>+9.1f}")
     if r["posterior"] is not None:
         print(r["_posterior"].summary())
+        post = r["posterior"]
+        print(f"posterior-predictive p = {post['predictive_p_value']:.3g} (is the measured L* what the posterior expects? "
+              f"≲ 0.01: no){'' if post['inputs'] == 'none' else '; published inputs as data (σ read as ' + post['inputs'] + ')'}")
+        if "discrepancy" in post["mean"]:
+            print(f"  with a sampled model discrepancy δ ≈ {post['mean']['discrepancy']:.3g} L* absorbing misfit; "
+                  "--fix discrepancy=0 tests agreement within the stated errors alone")
+        for name, v in post.get("input_shift", {}).items():
+            print(f"  {name:>6}: published {v['published']:.4g}, the posterior expects a reading of {v['expected_reading']:.4g} (z = {v['z']:+.2f})")
     print(f"time: {r['seconds']:.1f} s")
     return 0 if fr.success else 1

@@ -26,9 +26,23 @@ from ._profilometer import (
 )
 from ._registry import make_forward, register_forward
 from ._tilt_measurement import apparent_tilt_deg, fit_gamma, gamma_fit_sd, platelets_for_sd, tilt_fit_distribution
-from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerSettings, direct_tracer, tracer_emulator, tracer_info
+from ._tracer_forward import (
+    TRACER_BOX,
+    TRACER_PARAMETERS,
+    WIDE_TRACER_BOX,
+    WIDE_TRACER_SETTINGS,
+    TracerLStar,
+    TracerSettings,
+    direct_tracer,
+    tracer_emulator,
+    tracer_info,
+    wide_tracer_emulator,
+)
 
 __all__ = [
+    "WIDE_TRACER_BOX",
+    "WIDE_TRACER_SETTINGS",
+    "wide_tracer_emulator",
     "MeasuredInputs",
     "posterior_predictive_check",
     "SIGMA_DEFINITIONS",

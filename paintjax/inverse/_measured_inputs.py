@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import polygamma
 
+from ._parameters import get_parameter
 from ._profilometer import SIGMA_DEFINITIONS, ReadingModel
 
 
@@ -113,6 +114,9 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
     p = mean_i P(χ²_m ≥ T_i). A small p (≲ 0.01) says the model with these inputs and errors does not
     produce data like the measured ones.
 
+    Forward inputs that were neither sampled nor in `fixed` take their registered defaults, as in the
+    posterior.
+
     Returns:
         dict with "p_value", "chi2_median" (of T_i), the predictive band "L_star_q05", "L_star_q50",
         "L_star_q95" (replicated data), and "draws" used.
@@ -126,10 +130,9 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
     S = S[idx]
     fixed = dict(fixed or {})
     cols = {n: S[:, names.index(n)] for n in names}
-    missing = [n for n in forward.parameter_names if n not in cols and n not in fixed]
-    if missing:
-        raise ValueError(f"fixed must give the forward inputs that were not sampled: {', '.join(missing)}")
-    X = np.stack([cols[n] if n in cols else np.full(len(S), float(fixed[n])) for n in forward.parameter_names], axis=1)
+    # inputs neither sampled nor fixed take their registered defaults, as in the posterior (`Restricted`)
+    X = np.stack([cols[n] if n in cols else np.full(len(S), float(fixed.get(n, get_parameter(n).default)))
+                  for n in forward.parameter_names], axis=1)
     L = _evaluate(forward, X)
     y = np.asarray(measured, float)
     delta = cols.get("discrepancy", np.full(len(S), float(fixed.get("discrepancy", 0.0))))
