@@ -48,35 +48,35 @@ from paintjax import AnalyticForward, atomic_savefig, atomic_write_json, fit_lea
 from paintjax.inverse import LogPosterior  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "coverage"
+TRACER_FORWARDS = ("tracer-emulator", "tracer-emulator-wide")
 OUT_TRACER = Path(__file__).parent / "output" / "coverage_tracer"
 ALL = ("shape", "scale", "sigma", "tau")
 FREE = ("shape", "scale")
 
 
 def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Path, free=("shape", "scale"),
-        forward_name: str = "analytic", forward_options: dict | None = None) -> dict:
+        forward_name: str = "analytic", forward_options: dict | None = None, levels=(0.5, 0.9)) -> dict:
     global FREE
     FREE = tuple(free)
     jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
-    tracer = forward_name == "tracer-emulator"
+    tracer = forward_name in TRACER_FORWARDS
     if tracer:
-        from paintjax.inverse import TRACER_BOX, direct_tracer, make_forward, tracer_info
+        from paintjax.inverse import TRACER_BOX, WIDE_TRACER_BOX, direct_tracer, make_forward, tracer_info
 
         t_build = time.perf_counter()
-        forward = make_forward("tracer-emulator", ALL, **(forward_options or {}))
+        forward = make_forward(forward_name, ALL, **(forward_options or {}))
         build_info = tracer_info(forward) | {"seconds_this_process": time.perf_counter() - t_build}
         direct = direct_tracer(forward)
-        spec = make_spec(ALL, TRACER_BOX)
+        spec = make_spec(ALL, WIDE_TRACER_BOX if forward_name == "tracer-emulator-wide" else TRACER_BOX)
         extra_fixed = {}
     elif forward_name == "analytic":
         forward = AnalyticForward()
         spec = make_spec(ALL)
         extra_fixed = {"diffuse": 0.0}
     else:
-        raise ValueError(f"forward must be 'analytic' or 'tracer-emulator', got {forward_name!r}")
+        raise ValueError(f"forward must be 'analytic' or one of {TRACER_FORWARDS}, got {forward_name!r}")
     truths = np.asarray(spec.sample_prior(jax.random.key(seed), datasets))
     rng = np.random.default_rng(seed)
-    levels = (0.5, 0.9)
     hits = {lv: np.zeros(len(FREE), int) for lv in levels}
     grid_hits = {lv: np.zeros(len(FREE), int) for lv in levels}
     rows = []
@@ -118,7 +118,7 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
         rows.append(row)
         atomic_write_json(out / "partial.json", {"forward": forward_name, "free": list(FREE), "rows": rows})  # usable if interrupted
         print(f"dataset {i + 1}/{datasets}: χ²={best:.3g}, starts at best {same}/{fr.n_starts}, "
-              f"inside90={[row['inside'][f'{n}@0.9'] for n in FREE]}, n_eff={post.n_eff:.0f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+              f"inside@{levels[-1]:g}={[row['inside'][f'{n}@{levels[-1]}'] for n in FREE]}, n_eff={post.n_eff:.0f} ({time.perf_counter() - t0:.0f} s)", flush=True)
     coverage = {}
     for lv in levels:
         lo, hi = binom.ppf(0.025, datasets, lv), binom.ppf(0.975, datasets, lv)
@@ -196,7 +196,15 @@ def plot(summary: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     n = summary["datasets"]
-    fig, ax = plt.subplots(figsize=(5.5, 3.4))
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 3.4))
+    bins = np.linspace(0.0, 1.0, 11)
+    for j, name in enumerate(FREE):  # rank histogram: the posterior CDF at the truth, uniform when calibrated
+        pit = np.array([r["pit"][name] for r in summary["rows"]])
+        ax2.hist(pit + 0.0, bins=bins, histtype="step", lw=1.5, color=f"C{j}", label=f"{name} (KS p = {summary['calibration'][name]['pit_ks_pvalue']:.2g})")
+    ax2.axhline(n / (len(bins) - 1), color="k", lw=0.8, ls=":")
+    ax2.set_xlabel("posterior CDF at the truth (rank / draws)"), ax2.set_ylabel("datasets")
+    ax2.set_title("rank histograms (flat when calibrated)", fontsize=9)
+    ax2.legend(fontsize=7)
     x = np.arange(len(FREE))
     for k, (lv, c) in enumerate(summary["coverage"].items()):
         h = np.array([c["hits"][p] for p in FREE]) / n
@@ -221,17 +229,20 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--free", help="parameters inferred (others held at their true values); default shape,scale "
                                    "(analytic) or shape,scale,sigma,tau (tracer-emulator)")
-    ap.add_argument("--forward", default="analytic", choices=("analytic", "tracer-emulator"),
-                    help="analytic (data and inference from AnalyticForward) or tracer-emulator (data from the tracer)")
+    ap.add_argument("--forward", default="analytic", choices=("analytic",) + TRACER_FORWARDS,
+                    help="analytic (data and inference from AnalyticForward) or a tracer emulator (data from the tracer; "
+                    "tracer-emulator-wide: truths from WIDE_TRACER_BOX)")
+    ap.add_argument("--levels", default="0.5,0.9", help="credible levels whose coverage is counted (default 0.5,0.9)")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", help=f"output folder (default {OUT} or {OUT_TRACER})")
     a = ap.parse_args(argv)
     if a.quick or os.environ.get("PAINTJAX_QUICK", "") not in ("", "0"):
         a.datasets, a.steps, a.walkers = 2, 100, 8
-    tracer = a.forward == "tracer-emulator"
+    tracer = a.forward in TRACER_FORWARDS
     free = a.free or ("shape,scale,sigma,tau" if tracer else "shape,scale")
-    out = Path(a.out or (OUT_TRACER if tracer else OUT))
-    s = run(a.datasets, a.steps, a.walkers, a.starts, a.seed, out, tuple(free.split(",")), a.forward)
+    out = Path(a.out or (OUT_TRACER.with_name(OUT_TRACER.name + "_wide") if a.forward == "tracer-emulator-wide" else OUT_TRACER if tracer else OUT))
+    levels = tuple(float(v) for v in a.levels.split(","))
+    s = run(a.datasets, a.steps, a.walkers, a.starts, a.seed, out, tuple(free.split(",")), a.forward, levels=levels)
     for lv, c in s["coverage"].items():
         print(f"coverage {float(lv):.0%}: MCMC {c['hits']}, exact grid {c.get('grid_hits')} of {c['datasets']} "
               f"(binomial 95 % range {c['binomial_95_range']})")
