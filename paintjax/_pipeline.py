@@ -246,7 +246,7 @@ def simulate(
     has 15°, 45° and 110° at 45° illumination.
 
     `spectral`: trace at the `SPECTRAL_NODES_NM` wavelengths (platelet BRDF at each, same array and
-    seed) and combine them under D65 and the CIE 1964 10° observer (`_spectral`); the result then
+    seed) and combine them under D65 and the CIE 1964 10° observer (`paintjax.tracer._spectral`); the result then
     also holds "wavelengths_nm", "spectral_reflectance_factor", "XYZ", "Lab" and "Lab_se". Otherwise one
     wavelength (the BRDF's default). `progress` prints a line to stderr after every round of rays
     (rays so far, the worst L* standard error, seconds) and one per wavelength.

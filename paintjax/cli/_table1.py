@@ -3,7 +3,7 @@
 Columns: the measurement; the hybrid model (wave-based platelet BRDF from σ, τ through the ray
 tracer); mirror platelets through the same tracer (finite aperture, see `simulate`); the analytic
 single-scatter model of mirror platelets, with the entry and exit paths correlated over the
-sample's platelet widths (`_hot_spot`). Nothing is tuned to the measurement.
+sample's platelet widths (`paintjax.instrument._hot_spot`). Nothing is tuned to the measurement.
 """
 
 from __future__ import annotations

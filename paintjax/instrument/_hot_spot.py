@@ -3,7 +3,7 @@
 A ray that reached a platelet at depth z unobstructed has a clear entry path; its exit path toward
 ω_o starts at the same point, and near it the two paths are closer than a platelet width, so a
 platelet that would block the exit would often have blocked the entry too. For platelets much
-narrower than the mean free path the two attenuations are independent (the `_microfacet`
+narrower than the mean free path the two attenuations are independent (the `paintjax.instrument._single_scatter`
 denominator D = A_i μ_o + A_o μ_i); for the paint's 16 µm platelets and a mean free depth of
 t/PVC = 5 µm they are not, and single scattering is up to twice as bright.
 

@@ -11,7 +11,7 @@ the coat,
 
 which for mirror platelets collapses to f_in = R(ω_i·h) p(h) / (4 D), h the half vector. The
 independent exit occlusion holds for platelets much narrower than the mean free path; for wide
-ones the entry and exit paths are correlated (`_hot_spot`: D → μ_i μ_o / G). The
+ones the entry and exit paths are correlated (`paintjax.instrument._hot_spot`: D → μ_i μ_o / G). The
 reflectance factor through a flat coat of index n is R(γ) = π T(θ_i) T(θ_o) f_in / n² (brief §3).
 Platelets of finite thickness (`side_walls` = aspect t·E[w]/E[w²], 0 for thin platelets) add the
 projected area of their black side walls to A: a w × w × t box seen along ω shows
@@ -166,7 +166,7 @@ def microfacet_reflectance_factor(
     """Reflectance factor R = π T_i T_o f_in / n² at each detector of `geometry`.
 
     Finite aperture half-angles (if set on the geometry) are averaged over with a cone quadrature.
-    A wavy clearcoat (`_interface`) averages R over the visible facets of both crossings,
+    A wavy clearcoat (`paintjax.optics._interface`) averages R over the visible facets of both crossings,
     R = E_{m_i, m_o}[v_i v_o π T(m_i) T(m_o) f_in(ω_i(m_i), ω_o(m_o))] / n², by tensor
     Gauss–Hermite quadrature of the slopes.
 

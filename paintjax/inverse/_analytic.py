@@ -42,7 +42,7 @@ def _set_optics(brdf, n_binder, wavelength_um, metal_index) -> None:
 
 
 class CoherentMirrorBRDF(AbstractPlateletBRDF):
-    """Coherent (specular) part of a rough metal platelet: Fresnel × exp(−(2kσ cosθ)²) (as `_beckmann`).
+    """Coherent (specular) part of a rough metal platelet: Fresnel × exp(−(2kσ cosθ)²) (as `paintjax.brdf._analytic`).
 
     k = 2π n_binder / λ. Delta BRDF (mirror), so the microfacet model uses its closed form.
     """
@@ -82,7 +82,7 @@ SERIES_WINDOW = 64
 
 def windowed_kirchhoff_series(X, q2tau2, window: int = SERIES_WINDOW):
     """Σ_m e^{−X} X^m/(m! m) e^{−q²τ²/(4m)} over the `window` terms m ≥ max(1, ⌊X⌋ − 30) that carry the
-    Poisson(X) mass (same sum as `_beckmann.kirchhoff_series`, fixed cost for traced σ)."""
+    Poisson(X) mass (same sum as `paintjax.brdf._analytic.kirchhoff_series`, fixed cost for traced σ)."""
     from jax.scipy.special import gammaln
 
     m0 = jnp.maximum(1.0, jnp.floor(X) - 30.0)
@@ -99,7 +99,7 @@ def windowed_kirchhoff_series(X, q2tau2, window: int = SERIES_WINDOW):
 class AbstractTracedLobeBRDF(AbstractPlateletBRDF):
     """Incoherent lobe of a rough aluminium platelet whose σ, τ (µm) are traced arrays, so the
     analytic forward can vmap over walkers and differentiate. Evaluation only: the analytic
-    model integrates it by quadrature (`_beckmann.BeckmannBRDF` samples)."""
+    model integrates it by quadrature (`paintjax.brdf._analytic.BeckmannBRDF` samples)."""
 
     sigma: Float[Array, ""]
     tau: Float[Array, ""]
@@ -118,20 +118,20 @@ class AbstractTracedLobeBRDF(AbstractPlateletBRDF):
         return self.n_binder
 
     def sample(self, key, wi):  # not needed by the analytic model
-        raise NotImplementedError(f"{type(self).__name__} is evaluated by quadrature only; use _beckmann.BeckmannBRDF to sample")
+        raise NotImplementedError(f"{type(self).__name__} is evaluated by quadrature only; use paintjax.BeckmannBRDF to sample")
 
     def pdf(self, wi, wo):  # not needed by the analytic model
-        raise NotImplementedError(f"{type(self).__name__} is evaluated by quadrature only; use _beckmann.BeckmannBRDF to sample")
+        raise NotImplementedError(f"{type(self).__name__} is evaluated by quadrature only; use paintjax.BeckmannBRDF to sample")
 
     def albedo(self, cos_i):
-        raise NotImplementedError(f"{type(self).__name__} has no tabulated albedo; use _beckmann.BeckmannBRDF")
+        raise NotImplementedError(f"{type(self).__name__} has no tabulated albedo; use paintjax.BeckmannBRDF")
 
 
 class KirchhoffLobeBRDF(AbstractTracedLobeBRDF):
     """Incoherent Kirchhoff (Beckmann–Spizzichino) lobe of a Gaussian aluminium platelet with
     *traced* σ, τ (µm), so it can be vmapped over walkers and differentiated.
 
-    Same formula as `_beckmann.BeckmannBRDF.incoherent` (its `kirchhoff_geometry`), with a
+    Same formula as `paintjax.brdf._analytic.BeckmannBRDF.incoherent` (its `kirchhoff_geometry`), with a
     fixed-size window of the series; its coherent part is `CoherentMirrorBRDF` (delta).
     Evaluation only (the analytic model integrates it by quadrature).
     """
@@ -151,7 +151,7 @@ class BeckmannLobeBRDF(AbstractTracedLobeBRDF):
     f = (1 − e^{−X}) R(χ) D(h) / (4 cosθ_i cosθ_o),  X = (kσ(cosθ_i + cosθ_o))²,
 
     D the Beckmann distribution of slope parameter m = 2σ/τ (isotropic Gaussian surface,
-    C(r) = σ² exp(−r²/τ²)), no shadowing — the limit quoted in `_beckmann`. Fast (no series); it
+    C(r) = σ² exp(−r²/τ²)), no shadowing — the limit quoted in `paintjax.brdf._analytic`. Fast (no series); it
     drops the diffraction broadening (kτ ≈ 12 for the reference platelets, so that is a few %).
     """
 
@@ -191,7 +191,7 @@ def rough_platelets(sigma, tau, *, lobe: str = "beckmann", n_binder: float = 1.5
 # Analytic forward
 # ------------------------------------------------------------------------------------------
 class AnalyticForward(ForwardModel):
-    """Analytic single-scatter forward map (`_microfacet`) plus an optional Lambertian floor.
+    """Analytic single-scatter forward map (`paintjax.instrument._single_scatter`) plus an optional Lambertian floor.
 
     Parameters consumed: ``shape, scale`` (tilt gamma), ``sigma, tau`` (platelet roughness, µm;
     only when `rough`), ``diffuse`` (albedo ρ of a Lambertian floor under the coat,
@@ -200,7 +200,7 @@ class AnalyticForward(ForwardModel):
     Arguments:
         geometry: instrument geometry (default: MA98, 45° illumination, five standard angles).
         n: coat / binder refractive index.
-        rough: rough platelets (σ, τ enter through the analytic Kirchhoff BRDF of `_beckmann`) or mirrors.
+        rough: rough platelets (σ, τ enter through the analytic Kirchhoff BRDF of `paintjax.brdf._analytic`) or mirrors.
         lobe: incoherent lobe, ``"beckmann"`` (its geometric-optics limit, fast; default) or
             ``"kirchhoff"`` (full series, ~30× slower).
         wavelength_um: wavelength of the platelet optics.

@@ -5,10 +5,10 @@ A `ForwardModel` names the parameters it consumes (`parameter_names`, a subset o
 the instrument's angles, and states an extra per-angle standard deviation `error_sd` that the
 likelihood adds (zero for direct models, the held-out error for emulators). Implementations:
 
-* `AnalyticForward` – the analytic single-scatter model of `_microfacet` (milliseconds, jit and
+* `AnalyticForward` – the analytic single-scatter model of `paintjax.instrument._single_scatter` (milliseconds, jit and
   differentiable). Smooth (mirror) platelets, or rough platelets whose σ, τ enter through a
   platelet BRDF. To stay jit-able and differentiable its rough BRDF is the *analytic* Kirchhoff (Beckmann–Spizzichino) BRDF of a Gaussian surface from
-  `_beckmann` (coherent part exp(−(2kσ cosθ)²) as a mirror, incoherent lobe by quadrature), with
+  `paintjax.brdf._analytic` (coherent part exp(−(2kσ cosθ)²) as a mirror, incoherent lobe by quadrature), with
   σ, τ traced (`KirchhoffLobeBRDF`). No multiple scattering and no primer: far from specular
   (75°, 110°) it predicts almost no light (the ray tracer, with the wave-based BRDF grid, is the
   forward model of `_tracer_forward`, "tracer-emulator"). The

@@ -92,7 +92,7 @@ PARAMETERS: dict[str, Parameter] = {
         Parameter("sigma", 0.02, 0.2, "log", "loguniform", 0.05, "µm", "platelet roughness RMS height σ"),
         Parameter("tau", 0.1, 2.0, "log", "loguniform", 0.5, "µm", "platelet roughness correlation length τ (1/e)"),
         Parameter("pvc", 0.05, 0.4, "linear", "uniform", 0.2, "", "basecoat pigment volume concentration"),
-        Parameter("waviness", 0.0, 15.0, "linear", "uniform", 0.0, "deg", "clearcoat surface waviness: RMS slope angle (`_interface`)"),
+        Parameter("waviness", 0.0, 15.0, "linear", "uniform", 0.0, "deg", "clearcoat surface waviness: RMS slope angle (`paintjax.optics._interface`)"),
         Parameter("primer_albedo", 0.0, 1.0, "linear", "uniform", 0.3, "", "Lambertian albedo of the grey primer"),
         Parameter("diffuse", 0.0, 0.5, "linear", "uniform", 0.0, "", "Lambertian reflectance factor under the coat (multiple-scattering stand-in)"),
         Parameter("discrepancy", 0.0, 50.0, "linear", "halfcauchy", 0.0, "L*", "model-discrepancy standard deviation", 5.0),

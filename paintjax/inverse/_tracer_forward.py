@@ -46,7 +46,7 @@ Prior box (`TRACER_BOX`, log-uniform in each): shape 1.2–8, scale 0.7–4°, �
 ≈ 0.8° (almost perfectly aligned) to ≈ 30° (poorly aligned), platelet roughness from nearly
 specular (2kσ ≈ 0.75 at σ = 20 nm, over half the light coherent) to strongly diffusing
 (σ = 90 nm, coherent share < 10⁻³ at normal incidence), slopes 2σ/τ from 0.02 to 0.4. Rougher
-platelets were left out because the platelet tables of `_brdf_table` version 7 created energy
+platelets were left out because the platelet tables of `paintjax.brdf._table` version 7 created energy
 between grid nodes (L* > 300 at σ = 0.14, τ = 0.39 µm: the symmetric scale and the lobe were
 interpolated separately). Since version 9 the grid re-solves the scale at the interpolated point, so
 the albedo is the interpolated reflectance (within 1 % by quadrature, within 3 % of a table built

@@ -1,6 +1,6 @@
 """Single scattering by the mirror platelets of one given tile: a deterministic reference for the tracer.
 
-The analytic single-scatter model (`_microfacet`) is the ensemble of Boolean tiles. For mirror
+The analytic single-scatter model (`paintjax.instrument._single_scatter`) is the ensemble of Boolean tiles. For mirror
 platelets one tile departs from it by far more than the tracer's standard error: a detector
 sees only the platelets whose normals bisect the illumination and its aperture, few of them in
 the tail of the tilt law (tile-to-tile SD of R 3 / 6 / 29 % at 15 / 25 / 45° for the tracer tests'

@@ -13,13 +13,13 @@ Transport.
 * At the clearcoat–air interface from inside, the weight is split deterministically: (1 − R)
   leaves (scored by the histogram estimator), R is reflected back (R = 1 under total internal
   reflection above 41.8° for n = 1.5).
-* Optional clearcoat waviness (`waviness_deg`, RMS slope angle; `_interface`): every crossing of
+* Optional clearcoat waviness (`waviness_deg`, RMS slope angle; `paintjax.optics._interface`): every crossing of
   the surface (entry, internal reflection / exit, and each NEE direction) happens at a facet drawn
   from the visible-normal density of the Gaussian slope distribution (exact inversion, weight 1;
   NEE draws from the slope distribution with the visible-area weight v, which carries Smith's
   masking G1). Reflection and refraction are about the facet; an internal reflection that would
   still travel upward (grazing, rare) is mirrored down (multiple facet scattering and the masking
-  of exits are neglected: at grazing detectors exits exceed NEE by about 1/G1, see `_interface`). Off by default.
+  of exits are neglected: at grazing detectors exits exceed NEE by about 1/G1, see `paintjax.optics._interface`). Off by default.
 * Platelet boxes (centre ± w/2 u ± w/2 v ± t/2 n) are intersected with a slab test. The face
   through which a ray enters decides the scattering normal: the top and bottom faces scatter with
   the platelet BRDF (importance sampled, weight f cos/pdf; the weight lost is the platelet
@@ -304,7 +304,7 @@ def trace(
         n: clearcoat / binder index in (1, 3].
         clearcoat_thickness: h_c in µm (≥ 0).
         primer_albedo: Lambertian primer albedo ρ in [0, 1].
-        waviness_deg: RMS slope angle of a wavy clearcoat surface in [0, 15]° (0: flat; see `_interface`).
+        waviness_deg: RMS slope angle of a wavy clearcoat surface in [0, 15]° (0: flat; see `paintjax.optics._interface`).
         rays: number of rays, over all passes (bidirectional: 1 + m·`reverse_share` rays per
             forward ray; each pass rounded up to a multiple of the device count, so a few more
             than asked: `TraceResult.rays` is the count traced).
