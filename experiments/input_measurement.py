@@ -109,7 +109,7 @@ def tilt_study(seed: int, replicates: int) -> dict:
                          "apparent_tilts": {kk: sec[kk] for kk in ("shape_mean", "shape_sd", "scale_mean", "scale_sd", "correlation")}})
         out[name] = {"published": {"shape": k, "shape_pm": s.tilt_shape.uncertainty, "scale": th, "scale_pm": s.tilt_scale.uncertainty},
                      "platelets_for_published_shape_pm": platelets_for_sd(k, th, s.tilt_shape.uncertainty),
-                     "platelets_for_published_scale_pm": int(np.ceil((gamma_fit_sd(k, th, 1000)[1] * np.sqrt(1000) / s.tilt_scale.uncertainty) ** 2)),
+                     "platelets_for_published_scale_pm": platelets_for_sd(k, th, s.tilt_scale.uncertainty, "scale"),
                      "by_count": rows}
         print(f"  {name}: the published ± need {out[name]['platelets_for_published_shape_pm']} (shape) and "
               f"{out[name]['platelets_for_published_scale_pm']} (scale) platelets if sampling alone", flush=True)

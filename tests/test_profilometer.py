@@ -7,7 +7,7 @@ import jax
 import numpy as np
 import pytest
 
-from paintjax.inverse import Profilometer, log_likelihood_of_reading, profile_roughness, smoothed_gaussian_statistics
+from paintjax.inverse import SIGMA_DEFINITIONS, Profilometer, ReadingModel, profile_roughness, smoothed_gaussian_statistics
 
 LONG = dict(cutoff_fraction=None, scan_range_um=(200.0, 200.0), num_platelets=8)
 
@@ -52,10 +52,14 @@ def test_published_procedure_reads_low_and_is_reproducible():
 
 
 def test_reading_likelihood_is_a_normalised_density():
-    stats = {"log_sigma_mean": np.log(0.04), "log_sigma_sd": 0.1, "log_tau_mean": np.log(0.6), "log_tau_sd": 0.08, "log_correlation": 0.6}
+    """`ReadingModel.log_likelihood` is a density in the reading (σ̂, τ̂): it integrates to one."""
+    const = lambda v: np.array([v, v])  # noqa: E731 (moments that do not vary with τ)
+    model = ReadingModel(np.log([0.3, 3.0]), {d: const(np.log(0.8)) for d in SIGMA_DEFINITIONS}, {d: const(0.1) for d in SIGMA_DEFINITIONS},
+                         {d: const(0.6) for d in SIGMA_DEFINITIONS}, const(np.log(0.6)), const(0.08))
     s = np.linspace(0.025, 0.065, 161)
     t = np.linspace(0.4, 0.9, 161)
-    dens = np.exp([[log_likelihood_of_reading(stats, a, b) for b in t] for a in s])
+    S, T = np.meshgrid(s, t, indexing="ij")
+    dens = np.exp(np.asarray(model.log_likelihood(0.05, 1.0, S, T)))  # true σ 0.05: σ̂ centred on 0.05 × 0.8
     assert np.trapezoid(np.trapezoid(dens, t, axis=1), s) == pytest.approx(1.0, abs=2e-3)
 
 

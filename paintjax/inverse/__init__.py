@@ -20,12 +20,11 @@ from ._profilometer import (
     Profilometer,
     ReadingModel,
     build_reading_model,
-    log_likelihood_of_reading,
     profile_roughness,
     smoothed_gaussian_statistics,
 )
 from ._registry import make_forward, register_forward
-from ._tilt_measurement import apparent_tilt_deg, fit_gamma, gamma_fit_sd, platelets_for_sd, tilt_fit_distribution
+from ._tilt_measurement import apparent_tilt_deg, fit_gamma, gamma_fit_moments, gamma_fit_sd, platelets_for_sd, tilt_fit_distribution
 from ._tracer_forward import (
     TRACER_BOX,
     TRACER_PARAMETERS,
@@ -49,11 +48,11 @@ __all__ = [
     "Profilometer",
     "ReadingModel",
     "build_reading_model",
-    "log_likelihood_of_reading",
     "profile_roughness",
     "smoothed_gaussian_statistics",
     "apparent_tilt_deg",
     "fit_gamma",
+    "gamma_fit_moments",
     "gamma_fit_sd",
     "platelets_for_sd",
     "tilt_fit_distribution",

@@ -455,6 +455,21 @@ CHUNK = 16
 _FORWARDS: dict = {}
 
 
+def evaluate_in_chunks(model: ForwardModel, T, chunk: int = CHUNK) -> np.ndarray:
+    """L* (n, m) of a model at full θ rows T (n, p), in fixed-size chunks (the last padded), so one
+    compiled executable per model class and chunk size serves every batch."""
+    T = np.asarray(T, dtype=float)
+    n = T.shape[0]
+    pad = (-n) % chunk
+    if pad:
+        T = np.concatenate([T, np.repeat(T[-1:], pad, axis=0)])
+    if model.jittable:
+        out = [np.asarray(_jit_evaluate(model, jnp.asarray(T[i:i + chunk]))) for i in range(0, T.shape[0], chunk)]
+    else:
+        out = [np.asarray(model.evaluate(T[i:i + chunk])) for i in range(0, T.shape[0], chunk)]
+    return np.concatenate(out)[:n]
+
+
 def batched_forward(restricted: Restricted, sub: ParameterSpec, chunk: int = CHUNK):
     """NumPy function U (n, k) unconstrained → L* (n, m).
 
@@ -471,17 +486,9 @@ def batched_forward(restricted: Restricted, sub: ParameterSpec, chunk: int = CHU
 
     def fwd(U):
         U = np.asarray(U, dtype=float)
-        n = U.shape[0]
         X = sub.from_unconstrained_np(U)
         T = np.where(cols >= 0, X[:, np.maximum(cols, 0)], vals[None, :])
-        pad = (-n) % chunk
-        if pad:
-            T = np.concatenate([T, np.repeat(T[-1:], pad, axis=0)])
-        if model.jittable:
-            out = [np.asarray(_jit_evaluate(model, jnp.asarray(T[i:i + chunk]))) for i in range(0, T.shape[0], chunk)]
-        else:
-            out = [np.asarray(model.evaluate(T[i:i + chunk])) for i in range(0, T.shape[0], chunk)]
-        return np.concatenate(out)[:n]
+        return evaluate_in_chunks(model, T, chunk)
 
     if len(_FORWARDS) > 32:
         _FORWARDS.clear()

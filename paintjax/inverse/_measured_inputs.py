@@ -11,12 +11,11 @@ L* each say. `posterior_predictive_check` asks whether the L* are what the poste
 from __future__ import annotations
 
 import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import polygamma
 
-from ._parameters import get_parameter
-from ._profilometer import SIGMA_DEFINITIONS, ReadingModel
+from ._fit import evaluate_in_chunks
+from ._profilometer import SIGMA_DEFINITIONS, ReadingModel, normal2_log_density
+from ._tilt_measurement import gamma_fit_moments
 
 
 class MeasuredInputs(eqx.Module):
@@ -56,24 +55,14 @@ class MeasuredInputs(eqx.Module):
         nodes = None if self.reading is None else np.round(np.asarray(self.reading.log_tau_hat_mean), 6).tolist()
         return repr((self.sigma_hat_um, self.tau_hat_um, self.definition, self.shape_hat, self.scale_hat, self.tilt_platelets, nodes))
 
-    def tilt_moments(self, shape, scale):
-        """(SD of k̂, SD of θ̂, their correlation) of a gamma fit to `tilt_platelets` true tilts."""
-        k, th, n = jnp.asarray(shape), jnp.asarray(scale), float(self.tilt_platelets)
-        t = polygamma(1, k)
-        d = k * t - 1.0
-        return jnp.sqrt(k / (n * d)), jnp.sqrt(th**2 * t / (n * d)), -1.0 / jnp.sqrt(k * t)
-
     def log_likelihood(self, params: dict):
         """log p(published inputs | true parameters) for the parameters present in `params` (arrays)."""
         total = 0.0
         if self.reading is not None and "sigma" in params and "tau" in params:
             total = total + self.reading.log_likelihood(params["sigma"], params["tau"], self.sigma_hat_um, self.tau_hat_um, self.definition)
         if self.tilt_platelets > 0 and "shape" in params and "scale" in params:
-            sk, st, r = self.tilt_moments(params["shape"], params["scale"])
-            zk = (self.shape_hat - params["shape"]) / sk
-            zt = (self.scale_hat - params["scale"]) / st
-            q = (zk**2 - 2.0 * r * zk * zt + zt**2) / (1.0 - r**2)
-            total = total - 0.5 * q - jnp.log(2.0 * jnp.pi * sk * st * jnp.sqrt(1.0 - r**2))
+            sk, st, r = gamma_fit_moments(params["shape"], params["scale"], self.tilt_platelets)
+            total = total + normal2_log_density(self.shape_hat - params["shape"], self.scale_hat - params["scale"], sk, st, r)
         return total
 
     def shift_table(self, draws: dict) -> dict:
@@ -96,7 +85,7 @@ class MeasuredInputs(eqx.Module):
                           "z": float(np.mean((np.log(self.tau_hat_um) - m_t) / s_t))}
         if self.tilt_platelets > 0 and "shape" in draws and "scale" in draws:
             k, th = np.asarray(draws["shape"]), np.asarray(draws["scale"])
-            sk, st, _ = (np.asarray(v) for v in self.tilt_moments(k, th))
+            sk, st, _ = (np.asarray(v) for v in gamma_fit_moments(k, th, self.tilt_platelets))
             out["shape"] = {"published": self.shape_hat, "expected_reading": float(np.median(k)), "true_median": float(np.median(k)),
                             "z": float(np.mean((self.shape_hat - k) / sk))}
             out["scale"] = {"published": self.scale_hat, "expected_reading": float(np.median(th)), "true_median": float(np.median(th)),
@@ -129,26 +118,15 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
     idx = rng.choice(S.shape[0], size=min(int(max_draws), S.shape[0]), replace=False)
     S = S[idx]
     fixed = dict(fixed or {})
-    cols = {n: S[:, names.index(n)] for n in names}
-    # inputs neither sampled nor fixed take their registered defaults, as in the posterior (`Restricted`)
-    X = np.stack([cols[n] if n in cols else np.full(len(S), float(fixed.get(n, get_parameter(n).default)))
-                  for n in forward.parameter_names], axis=1)
-    L = _evaluate(forward, X)
+    free = tuple(n for n in names if n in forward.parameter_names)
+    # inputs neither sampled nor fixed take their registered defaults, as in the posterior
+    restricted = forward.restrict(free, {k: v for k, v in fixed.items() if k in forward.parameter_names})
+    L = evaluate_in_chunks(forward, np.asarray(restricted.full(S[:, [names.index(n) for n in free]])))
     y = np.asarray(measured, float)
-    delta = cols.get("discrepancy", np.full(len(S), float(fixed.get("discrepancy", 0.0))))
+    delta = S[:, names.index("discrepancy")] if "discrepancy" in names else np.full(len(S), float(fixed.get("discrepancy", 0.0)))
     var = float(instrument_sd) ** 2 + np.asarray(forward.error_sd, float) ** 2 + delta[:, None] ** 2
     T = np.sum((y - L) ** 2 / var, axis=1)
     rep = L + rng.standard_normal(L.shape) * np.sqrt(var)
     return {"p_value": float(np.mean(chi2_dist.sf(T, y.size))), "chi2_median": float(np.median(T)),
             "L_star_q05": np.quantile(rep, 0.05, axis=0), "L_star_q50": np.quantile(rep, 0.5, axis=0),
             "L_star_q95": np.quantile(rep, 0.95, axis=0), "draws": int(len(S))}
-
-
-def _evaluate(forward, X: np.ndarray, chunk: int = 16) -> np.ndarray:
-    """The forward model over rows of X in fixed chunks (one compilation)."""
-    out = []
-    for i in range(0, len(X), chunk):
-        part = X[i:i + chunk]
-        pad = np.concatenate([part, np.repeat(part[-1:], chunk - len(part), axis=0)]) if len(part) < chunk else part
-        out.append(np.asarray(forward(pad))[: len(part)])
-    return np.concatenate(out)

@@ -201,6 +201,13 @@ class Profilometer(eqx.Module):
         }
 
 
+def normal2_log_density(dx, dy, sx, sy, r):
+    """log density of a bivariate normal at offsets (dx, dy) from its mean, SDs (sx, sy), correlation r."""
+    zx, zy = dx / sx, dy / sy
+    q = (zx**2 - 2.0 * r * zx * zy + zy**2) / (1.0 - r**2)
+    return -0.5 * q - jnp.log(2.0 * jnp.pi * sx * sy * jnp.sqrt(1.0 - r**2))
+
+
 class ReadingModel(eqx.Module):
     """The sampling distribution of a campaign's reading (σ̂, τ̂) as a smooth function of the true (σ, τ).
 
@@ -237,11 +244,9 @@ class ReadingModel(eqx.Module):
             definition: the σ reading (`SIGMA_DEFINITIONS`).
         """
         m_r, s_r, m_t, s_t, r = self.moments(tau_um, definition)
-        zs = (jnp.log(sigma_hat_um) - jnp.log(sigma_um) - m_r) / s_r
-        zt = (jnp.log(tau_hat_um) - m_t) / s_t
-        r = jnp.clip(r, -0.99, 0.99)
-        q = (zs**2 - 2.0 * r * zs * zt + zt**2) / (1.0 - r**2)
-        return -0.5 * q - jnp.log(2.0 * jnp.pi * s_r * s_t * jnp.sqrt(1.0 - r**2)) - jnp.log(sigma_hat_um * tau_hat_um)
+        density = normal2_log_density(jnp.log(sigma_hat_um) - jnp.log(sigma_um) - m_r, jnp.log(tau_hat_um) - m_t, s_r, s_t,
+                                      jnp.clip(r, -0.99, 0.99))
+        return density - jnp.log(sigma_hat_um * tau_hat_um)  # the Jacobian of (log σ̂, log τ̂)
 
 
 #: Bumped when the reading model's construction changes (part of its cache key).
@@ -291,15 +296,3 @@ def build_reading_model(profilometer: Profilometer | None = None, *, tau_nodes_u
     a, _ = cached_arrays("roughness-reading-model", inputs, build, folder=cache_dir, use_cache=use_cache)
     return ReadingModel(np.log(nodes), {d: a[f"mean_{d}"] for d in SIGMA_DEFINITIONS}, {d: a[f"sd_{d}"] for d in SIGMA_DEFINITIONS},
                         {d: a[f"corr_{d}"] for d in SIGMA_DEFINITIONS}, a["log_tau_hat_mean"], a["log_tau_hat_sd"])
-
-
-def log_likelihood_of_reading(stats: dict, sigma_hat_um: float, tau_hat_um: float) -> float:
-    """log p(σ̂, τ̂ | true σ, τ) of a published reading under a campaign distribution (bivariate normal in
-    log σ̂, log τ̂ with the simulated means, SDs and correlation; `stats` from `campaign_distribution`,
-    optionally one entry of its "by_definition" merged in)."""
-    zs = (math.log(sigma_hat_um) - stats["log_sigma_mean"]) / stats["log_sigma_sd"]
-    zt = (math.log(tau_hat_um) - stats["log_tau_mean"]) / stats["log_tau_sd"]
-    r = float(np.clip(stats["log_correlation"], -0.99, 0.99))
-    q = (zs**2 - 2.0 * r * zs * zt + zt**2) / (1.0 - r**2)
-    return float(-0.5 * q - math.log(2.0 * math.pi * stats["log_sigma_sd"] * stats["log_tau_sd"] * math.sqrt(1.0 - r**2))
-                 - math.log(sigma_hat_um * tau_hat_um))

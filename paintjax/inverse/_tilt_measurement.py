@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import math
 
+import jax.numpy as jnp
 import numpy as np
-from scipy import special, stats
+from jax.scipy.special import polygamma
+from scipy import stats
 
 from ..microstructure._tilt import check_gamma_parameters
 
@@ -34,24 +36,33 @@ def fit_gamma(tilts_deg) -> tuple[float, float]:
     return float(k), float(theta)
 
 
-def gamma_fit_sd(shape: float, scale: float, num_platelets: int) -> tuple[float, float, float]:
-    """Asymptotic SDs of a maximum-likelihood gamma fit to `num_platelets` true tilts, and their correlation.
+def gamma_fit_moments(shape, scale, num_platelets):
+    """Asymptotic (SD of k̂, SD of θ̂, their correlation) of a maximum-likelihood gamma fit to
+    `num_platelets` true tilts (arrays, jittable).
 
     Fisher information per tilt: [[ψ'(k), 1/θ], [1/θ, k/θ²]], so var k̂ = k / (n (k ψ'(k) − 1)) and
     var θ̂ = θ² ψ'(k) / (n (k ψ'(k) − 1)); corr = −1/√(k ψ'(k)).
     """
+    k, th, n = jnp.asarray(shape), jnp.asarray(scale), float(num_platelets)
+    t = polygamma(1, k)
+    d = k * t - 1.0
+    return jnp.sqrt(k / (n * d)), jnp.sqrt(th**2 * t / (n * d)), -1.0 / jnp.sqrt(k * t)
+
+
+def gamma_fit_sd(shape: float, scale: float, num_platelets: int) -> tuple[float, float, float]:
+    """`gamma_fit_moments` for one validated law and count, as floats."""
     check_gamma_parameters(shape, scale)
-    k, th, n = float(shape), float(scale), int(num_platelets)
-    if n < 2:
-        raise ValueError(f"num_platelets must be ≥ 2, got {num_platelets!r}")
-    d = k * float(special.polygamma(1, k)) - 1.0
-    return math.sqrt(k / (n * d)), math.sqrt(th**2 * float(special.polygamma(1, k)) / (n * d)), -1.0 / math.sqrt(k * float(special.polygamma(1, k)))
+    if int(num_platelets) != num_platelets or num_platelets < 2:
+        raise ValueError(f"num_platelets must be an integer ≥ 2, got {num_platelets!r}")
+    return tuple(float(v) for v in gamma_fit_moments(float(shape), float(scale), int(num_platelets)))
 
 
-def platelets_for_sd(shape: float, scale: float, shape_sd: float) -> int:
-    """The count of true tilts whose gamma fit has the shape SD `shape_sd` (sampling alone)."""
-    sd1 = gamma_fit_sd(shape, scale, 2)[0] * math.sqrt(2.0)  # SD for one platelet
-    return int(math.ceil((sd1 / float(shape_sd)) ** 2))
+def platelets_for_sd(shape: float, scale: float, sd: float, parameter: str = "shape") -> int:
+    """The count of true tilts whose gamma fit has the SD `sd` in `parameter` ("shape" or "scale"), sampling alone."""
+    if parameter not in ("shape", "scale"):
+        raise ValueError(f"parameter must be 'shape' or 'scale', got {parameter!r}")
+    one = gamma_fit_sd(shape, scale, 2)[0 if parameter == "shape" else 1] * math.sqrt(2.0)  # SD for one platelet
+    return int(math.ceil((one / float(sd)) ** 2))
 
 
 def tilt_fit_distribution(seed: int, shape: float, scale: float, num_platelets: int, *, section: bool = False,

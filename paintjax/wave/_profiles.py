@@ -139,13 +139,15 @@ def synthesize_profiles(
     return Profiles(jnp.asarray(x), h, dh, d2h, float(dx), covariance)
 
 
-def autocorrelation(h: Float[Array, "... N"]) -> Float[Array, "... N"]:
-    """Biased autocorrelation estimate (about the mean) at lags 0, Δx, 2Δx, … (non-periodic)."""
-    h = jnp.asarray(h)
+def autocorrelation(h) -> np.ndarray:
+    """Biased autocorrelation estimate (about the mean) at lags 0, Δx, 2Δx, … (non-periodic).
+
+    NumPy on the host: measured scans come in every length, and a JAX FFT would compile per length.
+    """
+    h = np.asarray(h, dtype=float)
     n = h.shape[-1]
-    hc = h - jnp.mean(h, axis=-1, keepdims=True)
-    f = jnp.fft.rfft(hc, n=2 * n, axis=-1)
-    return jnp.fft.irfft(jnp.abs(f) ** 2, n=2 * n, axis=-1)[..., :n] / n
+    f = np.fft.rfft(h - h.mean(axis=-1, keepdims=True), n=2 * n, axis=-1)
+    return np.fft.irfft(np.abs(f) ** 2, n=2 * n, axis=-1)[..., :n] / n
 
 
 def profile_statistics(h, spacing_um: float) -> dict:
@@ -162,9 +164,7 @@ def profile_statistics(h, spacing_um: float) -> dict:
     h = np.asarray(h, dtype=float)
     if not np.all(np.isfinite(h)):
         raise ValueError("h must be finite (no NaN or inf heights)")
-    n = h.shape[-1]  # the biased autocorrelation (as `autocorrelation`), in NumPy: no compilation per length
-    f = np.fft.rfft(h - h.mean(axis=-1, keepdims=True), n=2 * n, axis=-1)
-    c = np.fft.irfft(np.abs(f) ** 2, n=2 * n, axis=-1)[..., :n] / n
+    c = autocorrelation(h)
     sig = np.sqrt(c[..., 0])
     rho = c / c[..., :1]
     below = rho < np.exp(-1.0)
