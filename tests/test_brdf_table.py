@@ -221,3 +221,21 @@ def test_negative_coherent_estimate_gets_its_positive_part():
     assert np.all(out.sigma_coherent[0] == 0.0)
     np.testing.assert_array_equal(out.sigma_coherent[1], sig_coh[1])
     np.testing.assert_array_equal(out.sigma, sigma)
+
+
+def test_width_shift_moves_the_centroid_and_keeps_the_mass():
+    """`_shift_widths` (the lobe alignment of `BRDFTableGrid.at`): on a lobe whose mass stays inside the
+    basis, the centroid lands exactly on the target, the mass is kept, an integer move is a plain
+    shift of the masses, and a zero move changes nothing."""
+    from paintjax.brdf._grid import _shift_widths, _width_centroid
+
+    k = np.arange(36.0)
+    mass = jnp.asarray(np.stack([np.exp(-0.5 * ((k - 14.3) / 1.5) ** 2), np.where(k == 9, 1.0, 0.0) + np.where(k == 20, 0.5, 0.0)]))
+    c0 = np.asarray(_width_centroid(mass))
+    for move in (-3.7, -1.0, 0.0, 0.4, 2.0, 5.25):
+        moved = _shift_widths(mass, jnp.asarray(c0 + move))
+        np.testing.assert_allclose(np.asarray(_width_centroid(moved)), c0 + move, atol=1e-10)
+        np.testing.assert_allclose(np.asarray(moved.sum(-1)), np.asarray(mass.sum(-1)), rtol=1e-10)
+        assert np.all(np.asarray(moved) >= 0)
+        if float(move).is_integer():
+            np.testing.assert_allclose(np.asarray(moved), np.roll(np.asarray(mass), int(move), -1), atol=1e-12)

@@ -291,12 +291,15 @@ def test_grid_built_table_within_3_percent_of_a_direct_table(sigma, tau, source)
         grid.build_at(sigma, 3.0 * tau)
 
 
-@pytest.mark.xfail(strict=True, reason="the jittable coefficient interpolation `at` is 4–12 % (L1) from a direct table between nodes (open)")
-@pytest.mark.parametrize("sigma,tau,source", [(0.051, 0.64, "wave"), (0.14, 0.39, "kirchhoff")])
+@pytest.mark.parametrize("sigma,tau,source", [
+    (0.051, 0.64, "wave"),
+    pytest.param(0.14, 0.39, "kirchhoff", marks=pytest.mark.xfail(strict=True, reason="`at` is 3.5 % from a direct table at 70° here (open)")),
+])
 def test_grid_at_within_3_percent_of_a_direct_table(sigma, tau, source):
-    """The differentiable path `at` (lobe coefficients interpolated) within 3 % of a direct table at the
-    same mid-cell points. Fails: coefficients on fixed basis widths mix neighbouring lobes (measured
-    4–12 %; 16–36 % at ratio 2); `build_at` is the accurate host-side path."""
+    """The differentiable path `at` (lobes aligned in width, then interpolated) within 3 % of a direct
+    table at the same mid-cell points. Measured 0.8–2.3 % for the wave tables; for the steep surface
+    1.0–3.5 %, above 3 % at 70° (where the direct tables' radial-lobe fit leaves 20–35 % residuals and
+    is itself not smooth in (σ, τ)): expected to fail there."""
     grid, kw = fine_grid(sigma, tau, source)
     wo, wt = hemisphere()
     for q in ((sigma / np.sqrt(FINE), tau / np.sqrt(FINE)), (sigma * np.sqrt(FINE), tau / np.sqrt(FINE))):

@@ -74,10 +74,11 @@ reflectance (`_wave_with_grazing_extension`; `wave_solved` records which).
 incidence's own in-plane data (`proposal_coef`), plus 2 % uniform over the disk and the coherent
 branch; `pdf` is its exact density, and `sample` weights are f cosθ_o / pdf.
 
-**Grid over (σ, τ).** `BRDFTableGrid.at(σ, τ)` interpolates the stacked table arrays (linear in
-f) with monotone cubic Hermite (PCHIP, Fritsch–Butland slopes) in log σ, then log τ: C¹,
-interpolating at the nodes, non-negative (coefficients stay ≥ 0), differentiable in (σ, τ) for the
-inverse layer. Its albedo is the interpolated reflectance (consistent to the interpolation error).
+**Grid over (σ, τ).** `BRDFTableGrid.at(σ, τ)` interpolates the stacked table arrays with
+monotone cubic Hermite (PCHIP, Fritsch–Butland slopes) in log σ, then log τ, after moving each
+neighbour's lobe along the basis widths to the interpolated width: interpolating at the nodes,
+non-negative (coefficients stay ≥ 0), continuous and differentiable in (σ, τ) for the inverse
+layer. Its albedo is the interpolated reflectance (consistent to the interpolation error).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ Monte Carlo estimate can be:
   (75°, 110°) spiky; CRN cannot remove those.
 * *Platelet BRDF.* σ and τ enter through the PCHIP-interpolated grid of platelet tables
   (`paintjax.brdf._table.platelet_brdf_grid`, log σ × log τ, built once per process and cached
-  table by table), so the BRDF is a C¹ function of (σ, τ). Default `table_source="wave"`: the
+  table by table), so the BRDF is a continuous, piecewise-smooth function of (σ, τ). Default `table_source="wave"`: the
   hybrid model's wave-solver tables (30 tables, ≈ 1 min on 2 cores, cached). `"kirchhoff"` builds
   the tables from closed-form 1-D Kirchhoff lobes instead (fast, used by the tests); those inherit
   the Kirchhoff approximation's reflectance above 1 near grazing incidence.
@@ -71,7 +71,7 @@ import numpy as np
 
 #: Bump when the meaning of a tracer evaluation changes (physics, settings semantics): emulator
 #: cache keys depend on it (the BRDF table version enters the key separately).
-TRACER_FORWARD_VERSION = 3
+TRACER_FORWARD_VERSION = 4  # 4: the BRDF grid's `at` aligns lobe widths between nodes
 
 #: Parameters the tracer forward map consumes, in column order.
 TRACER_PARAMETERS = ("shape", "scale", "sigma", "tau")
