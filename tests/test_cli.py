@@ -76,7 +76,15 @@ def test_readable_table(capsys):
         (["simulate", "--seed", "-1"], "seed"),
         (["simulate", "--shape", "0"], "shape"),
         (["simulate", "--out", "/proc/version/sub"], "--out must be a folder"),
-        (["brdf", "--n", "0.5"], "n_medium"),
+        (["brdf", "--n", "0.5"], "--n must lie in"),
+        (["brdf", "--sigma", "-1"], "--sigma"),
+        (["lobe", "--wavelength", "1e-6", "--profiles", "1"], "--wavelength must lie in [0.2, 12.0]"),
+        (["lobe", "--wavelength", "15"], "--wavelength must lie in [0.2, 12.0]"),
+        (["lobe", "--length", "2000", "--profiles", "1"], "--length"),
+        (["simulate", "--aspecular=15,15,25"], "--aspecular must list each angle once"),
+        (["fit", "--posterior", "--walkers", "1"], "--walkers must be even"),
+        (["fit", "--posterior", "--walkers", "13"], "--walkers must be even"),
+        (["fit", "--overwrite"], "--overwrite applies to --chain"),
         (["simulate", "--d50", "0"], "d50"),
         (["simulate", "--platelet-thickness", "25"], "platelet_thickness"),
         (["simulate", "--pvc", "0.45"], "pvc"),
@@ -96,6 +104,41 @@ def test_bad_input_is_a_one_line_error(argv, needle, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert needle in err and "Traceback" not in err
+
+
+def test_lobe_refuses_an_unconverged_solve(tmp_path, capsys):
+    """A steep surface sampled at 12 points per wavelength (not the default curvature-following grid)
+    creates energy (scattered 1.64 + absorbed 1.47): refused with the ledger and the fix, exit 2,
+    nothing written."""
+    argv = ["lobe", "--sigma", "0.3", "--tau", "0.1", "--profiles", "1", "--length", "5", "--out", str(tmp_path / "o")]
+    assert main(argv + ["--ppw", "12"]) == 2
+    err = capsys.readouterr().err
+    assert "not converged" in err and "--ppw" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_array_refuses_leftover_overlaps(tmp_path, capsys):
+    """Without re-placements the generator leaves overlaps: refused unless --allow-overlaps."""
+    argv = ["array", "--max-attempts", "0", "--no-plots", "--tile", "150", "--json"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--allow-overlaps" in err and "Traceback" not in err
+    assert main(argv + ["--allow-overlaps"]) == 0
+    assert json.loads(capsys.readouterr().out)["overlaps_exact"] > 0
+
+
+def test_chain_checks_come_before_the_fit(tmp_path, capsys):
+    """An unreadable --chain is refused before the least-squares fit, naming --chain, and left as it is."""
+    import time
+
+    path = tmp_path / "notes.h5"
+    path.write_text("not a chain")
+    t0 = time.perf_counter()
+    assert main(["fit", "--posterior", "--chain", str(path), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--chain" in err and "not a readable emcee chain" in err and "Traceback" not in err
+    assert path.read_text() == "not a chain"
+    assert time.perf_counter() - t0 < 15.0  # no fit ran (a fit takes 20–36 s)
 
 
 def test_undefined_values_are_null_in_json(tmp_path):

@@ -64,7 +64,7 @@ def test_hdf5_backend_resumes_after_interruption(tmp_path):
                 raise KeyboardInterrupt
             return self.inner.map(fn, parts)
 
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(KeyboardInterrupt, match="interrupted after .* steps; the chain in .* is kept: rerun the same command to resume"):
         sample_posterior(MIRROR, y, max_steps=80, pool=FlakyPool(), **kw)
     import emcee
 
@@ -75,8 +75,13 @@ def test_hdf5_backend_resumes_after_interruption(tmp_path):
     assert post.steps == 80
     back = emcee.backends.HDFBackend(str(path), read_only=True).get_chain()
     np.testing.assert_array_equal(back[:done], first)  # nothing lost, nothing redone
-    # An incompatible request (different data) restarts the chain instead of mixing them.
-    post2 = sample_posterior(MIRROR, y + 1.0, max_steps=40, **kw)
+    # A request for other data never touches the stored chain: refused, unless overwrite=True.
+    with pytest.raises(ValueError, match="holds 80 steps of a chain that was sampled for other data"):
+        sample_posterior(MIRROR, y + 1.0, max_steps=40, **kw)
+    np.testing.assert_array_equal(emcee.backends.HDFBackend(str(path), read_only=True).get_chain(), back)
+    with pytest.raises(ValueError, match="resume=False"):
+        sample_posterior(MIRROR, y, max_steps=40, resume=False, **kw)
+    post2 = sample_posterior(MIRROR, y + 1.0, max_steps=40, overwrite=True, **kw)
     assert post2.steps == 40
     # A damaged chain file (a run killed while emcee wrote in place) is named, not a raw h5py error.
     path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])

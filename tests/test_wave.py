@@ -282,4 +282,4 @@ def test_cli_lobe_json(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and out["energy"]["scattered"] + out["energy"]["absorbed"] == pytest.approx(1.0, abs=2e-3)
     assert main(["lobe", "--incidence", "89", "--profiles", "1", "--length", "6"]) == 2
-    assert "incidence_deg" in capsys.readouterr().err
+    assert "--incidence" in capsys.readouterr().err

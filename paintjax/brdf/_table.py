@@ -93,7 +93,7 @@ from jaxtyping import Array, Float
 from scipy.special import erf
 
 from .._cache import cached_arrays
-from ..wave._solver import SOLVER_VERSION, default_spacing
+from ..wave._solver import SOLVER_VERSION, check_energy, default_spacing
 from ._analytic import (
     DEFAULT_PLATELET_WIDTH_UM,
     AbstractLobeBRDF,
@@ -374,9 +374,6 @@ def table_from_lobes(
     return TabulatedBRDF.from_arrays(arrays, coherent=coherent, coherent_width=coherent_width, n_medium=n_medium)
 
 
-#: A wave table whose reflected (+ absorbed, where solved) power exceeds 1 + this at any incidence is refused
-#: (an unconverged solve creates energy; the truncated profile's runoff loses ≲ 2 % near grazing, which is not refused).
-WAVE_ENERGY_TOLERANCE = 0.01
 
 
 def platelet_table_arrays(
@@ -459,16 +456,10 @@ def platelet_table_arrays(
     t0 = time.perf_counter()
     arrays, hit = cached_arrays("brdf_table", inputs, build, folder=cache_dir, use_cache=cache)
     if source == "wave":  # each profile's solution conserves energy to ~1e-3 when converged
-        R = np.asarray(arrays["reflectance"])
-        energy = (R + np.asarray(arrays["absorbed"]))[np.asarray(arrays["wave_solved"], bool)]
-        if np.any(R > 1.0 + WAVE_ENERGY_TOLERANCE) or np.any(energy > 1.0 + WAVE_ENERGY_TOLERANCE):
-            j = int(np.argmax(np.where(np.asarray(arrays["wave_solved"], bool), R + np.asarray(arrays["absorbed"]), R)))
-            raise ValueError(
-                f"sigma_um={float(sigma_um):g}, tau_um={float(tau_um):g}: the wave solution reflects {R[j]:.3g} and absorbs "
-                f"{float(arrays['absorbed'][j]):.3g} of the incident power at {inc[j]:g}° incidence (more than 1 + {WAVE_ENERGY_TOLERANCE:g}), "
-                f"so it is not converged (rms slope ≈ "
-                f"{np.degrees(np.arctan(np.sqrt(2.0) * sigma_um / tau_um)):.0f}°, too steep for the solver's sampling); "
-                "use the default (curvature-following) sampling or more points_per_wavelength, a gentler roughness, or source='kirchhoff'")
+        check_energy(arrays["reflectance"], arrays["absorbed"], inc, solved=arrays["wave_solved"],
+                     what=f"sigma_um={float(sigma_um):g}, tau_um={float(tau_um):g}: the wave solution",
+                     fix=f"the default (curvature-following) sampling or more points_per_wavelength, a gentler roughness "
+                         f"(rms slope ≈ {np.degrees(np.arctan(np.sqrt(2.0) * sigma_um / tau_um)):.0f}°), or source='kirchhoff'")
     return arrays, {"cache_hit": hit, "seconds": time.perf_counter() - t0}
 
 

@@ -26,6 +26,7 @@ def register(sub) -> None:
     add_array_arguments(p)
     p.add_argument("--overlap-test", default="sat", choices=("sat", "midplane", "none"), help="overlap test used for removal (default sat)")
     p.add_argument("--max-attempts", type=int, default=1000, help="re-placements per platelet (default 1000)")
+    p.add_argument("--allow-overlaps", action="store_true", help="keep an array whose overlaps could not all be removed (default: refuse, exit 2)")
     p.add_argument("--no-plots", action="store_true", help="do not write the pictures")
     add_output_argument(p, "results/array")
     add_json_argument(p)
@@ -57,6 +58,10 @@ def compute(sample="silver1", seed=0, tile=None, pvc=None, overlap_test="sat", m
 def run(args) -> int:
     array, tilt, stats = compute(args.sample, args.seed, args.tile, args.pvc, args.overlap_test, args.max_attempts,
                                  d50=args.d50, platelet_thickness=args.platelet_thickness)
+    left = stats["overlaps_midplane" if args.overlap_test == "midplane" else "overlaps_exact"]
+    if args.overlap_test != "none" and left > 0 and not args.allow_overlaps:
+        raise ValueError(f"{left} overlapping platelet pairs remain after --max-attempts {args.max_attempts} re-placements "
+                         f"({stats['log'].n_failed} platelets could not be placed); raise --max-attempts, lower --pvc, or pass --allow-overlaps")
     paths = []
     if not args.no_plots:
         out = Path(args.out)

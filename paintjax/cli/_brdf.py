@@ -13,6 +13,10 @@ CUT_INCIDENCE_DEG = (0.0, 20.0, 40.0, 60.0)
 THETA_O_DEG = np.arange(-89.0, 90.0, 1.0)
 
 
+#: API argument → flag, for error messages.
+API_FLAGS = {"sigma_um": "--sigma", "tau_um": "--tau", "wavelength_um": "--wavelength", "n_medium": "--n", "length_um": "--length", "num_profiles": "--profiles"}
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "brdf",

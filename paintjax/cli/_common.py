@@ -33,6 +33,15 @@ def parse_floats(text: str, name: str, count: int | None = None) -> list[float]:
     return values
 
 
+def parse_distinct(text: str, name: str) -> list[float]:
+    """Comma-separated finite numbers of option `name`, none repeated."""
+    values = parse_floats(text, name)
+    repeated = sorted({v for v in values if values.count(v) > 1})
+    if repeated:
+        raise ValueError(f"{name} must list each angle once, got {', '.join(f'{v:g}' for v in repeated)} more than once in {text!r}")
+    return values
+
+
 def add_output_argument(parser, default: str) -> None:
     parser.add_argument("--out", default=default, help=f"folder for data and plots (default: {default})")
 

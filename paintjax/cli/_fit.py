@@ -45,6 +45,10 @@ def add_model_arguments(p, *, starts: int = 8) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of starts and sampler (default 0)")
 
 
+#: API argument → flag, for error messages.
+API_FLAGS = {"backend_path": "--chain", "overwrite=True": "--overwrite"}
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "fit",
@@ -66,7 +70,8 @@ def register(sub) -> None:
                    "--tilt-platelets measured tilts (docs/input_measurement.md); default none (inputs only through the prior box)")
     p.add_argument("--tilt-platelets", type=int, default=200,
                    help="platelets behind the published tilt law, for --inputs (default 200, an assumption; 0: tilt law not used)")
-    p.add_argument("--chain", help="HDF5 file of the chain (resumes if compatible); default: none")
+    p.add_argument("--chain", help="HDF5 file of the chain (resumes a chain of the same run; default: none)")
+    p.add_argument("--overwrite", action="store_true", help="replace a stored --chain that was sampled for another run")
     p.add_argument("--out", help="folder for posterior.nc and corner.png (default: none written)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_json_argument(p)
@@ -97,9 +102,13 @@ def compute(args) -> dict:
         raise ValueError("--inputs needs --sample: published inputs belong to a reference sample, not to --measured values")
     if not 0 <= args.tilt_platelets <= 1_000_000:
         raise ValueError(f"--tilt-platelets must lie in [0, 1000000], got {args.tilt_platelets}")
+    if args.overwrite and not args.chain:
+        raise ValueError("--overwrite applies to --chain")
     forward = make_forward(args.forward, free, fixed, progress=not args.no_progress and not args.json)
     # Defaults adapt to the model (a mirror model has no σ, τ); explicit --free is taken as given.
     lsq_free = free if args.free is not None else tuple(n for n in free if n in forward.parameter_names or n == "discrepancy")
+    if args.posterior:  # every posterior check before the least-squares fit
+        post_free, post_fixed, inputs = _posterior_setup(args, forward, measured, lsq_free, fixed)
     fr = fit_least_squares(forward, measured, free=lsq_free, fixed={k: v for k, v in fixed.items() if k in forward.parameter_names},
                            n_starts=args.starts, seed=args.seed)
     out = {
@@ -123,20 +132,9 @@ def compute(args) -> dict:
     if args.posterior:
         from ..inverse._posterior import corner_plot, sample_posterior, save_netcdf
 
-        post_free = tuple(n for n in lsq_free if n != "discrepancy")
-        post_fixed = {k: v for k, v in fixed.items() if k in forward.parameter_names or k == "discrepancy"}
-        if "discrepancy" not in post_fixed:
-            post_free = post_free + ("discrepancy",)
-        inputs = None
-        if args.inputs != "none":
-            from ..inverse._measured_inputs import MeasuredInputs
-            from ..inverse._profilometer import build_reading_model
-
-            rough = {"sigma", "tau"} <= set(forward.parameter_names)  # the roughness reading only where σ, τ are inputs
-            reading = build_reading_model(progress=not args.json) if rough else None
-            inputs = MeasuredInputs.for_sample(s, reading, definition=args.inputs, tilt_platelets=args.tilt_platelets)
         pr = sample_posterior(forward, measured, free=post_free, fixed=post_fixed, walkers=args.walkers, max_steps=args.max_steps,
                               min_steps=min(500, args.max_steps), check_every=min(250, args.max_steps), min_ess=args.min_ess, init=fr, seed=args.seed, backend_path=args.chain,
+                              overwrite=args.overwrite,
                               progress=not args.no_progress and not args.json, inputs=inputs)
         d = pr.to_dict()
         out["posterior"] = {k: d[k] for k in ("mean", "q05", "q50", "q95", "tau_int", "n_eff", "steps", "converged", "acceptance",
@@ -156,6 +154,32 @@ def compute(args) -> dict:
             corner_plot(pr, path=Path(args.out) / "corner.png", title=f"{label}: posterior ({args.forward})")
     out["seconds"] = time.perf_counter() - t0
     return out
+
+
+def _posterior_setup(args, forward, measured, lsq_free, fixed):
+    """(free, fixed, inputs) of the posterior, with the walkers and the --chain checked (nothing written)."""
+    from .._samples import load_sample
+    from ..inverse._posterior import LogPosterior, check_chain
+
+    post_free = tuple(n for n in lsq_free if n != "discrepancy")
+    post_fixed = {k: v for k, v in fixed.items() if k in forward.parameter_names or k == "discrepancy"}
+    if "discrepancy" not in post_fixed:
+        post_free = post_free + ("discrepancy",)
+    if args.walkers < 2 * len(post_free) or args.walkers % 2:
+        raise ValueError(f"--walkers must be even and >= 2 × {len(post_free)} sampled parameters = {2 * len(post_free)}, got {args.walkers}")
+    inputs = None
+    if args.inputs != "none":
+        from ..inverse._measured_inputs import MeasuredInputs
+        from ..inverse._profilometer import build_reading_model
+
+        rough = {"sigma", "tau"} <= set(forward.parameter_names)  # the roughness reading only where σ, τ are inputs
+        reading = build_reading_model(progress=not args.json) if rough else None
+        inputs = MeasuredInputs.for_sample(load_sample(args.sample or "silver1"), reading, definition=args.inputs,
+                                           tilt_platelets=args.tilt_platelets)
+    if args.chain:
+        lp = LogPosterior(forward, measured, post_free, post_fixed, inputs=inputs)
+        check_chain(args.chain, lp.description(args.walkers), overwrite=args.overwrite)
+    return post_free, post_fixed, inputs
 
 
 def run(args) -> int:

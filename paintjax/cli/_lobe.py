@@ -37,6 +37,11 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+#: API argument → flag, for error messages.
+API_FLAGS = {"sigma_um": "--sigma", "tau_um": "--tau", "wavelength_um": "--wavelength", "n_medium": "--n", "length_um": "--length",
+             "num_profiles": "--profiles", "points_per_wavelength": "--ppw", "incidence_deg": "--incidence"}
+
+
 def compute(args) -> dict:
     """Solve and return the lobes and the energy ledger as plain arrays (the CLI's data)."""
     from .. import profile_averaged_lobes
@@ -67,6 +72,10 @@ def compute(args) -> dict:
         )
         source = {"synthesised": args.correlation, "profiles": args.profiles, "seed": args.seed, "length_um": args.length,
                   "sigma_um": args.sigma, "tau_um": args.tau}
+    from ..wave._solver import check_energy
+
+    check_energy(lobes.reflected, lobes.absorbed, np.asarray(lobes.incidence_deg), what="the wave solution",
+                 fix="more points per wavelength (--ppw), a gentler slope, or a longer --length")
     return {"lobes": lobes, "source": source}
 
 

@@ -42,6 +42,16 @@ def _check_output_folder(out) -> None:
         raise ValueError(f"--out must be a folder that can be written, but {str(probe)!r} is not writable, got {out!r}")
 
 
+def _as_flags(message: str, command: str) -> str:
+    """The error message with the API argument names of the command's `API_FLAGS` written as its flags."""
+    import re
+
+    flags = getattr(importlib.import_module(f"paintjax.cli._{command}"), "API_FLAGS", {})
+    for name, flag in flags.items():
+        message = re.sub(rf"(?<![\w-]){re.escape(name)}(?![\w])", flag, message)
+    return message
+
+
 def main(argv: list[str] | None = None) -> int:
     import jax
 
@@ -52,8 +62,11 @@ def main(argv: list[str] | None = None) -> int:
         _check_output_folder(getattr(args, "out", None))
         result = args.func(args)
     except ValueError as err:
-        print(f"paintjax {args.command}: error: {err}", file=sys.stderr)
+        print(f"paintjax {args.command}: error: {_as_flags(str(err), args.command)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as err:  # Ctrl-C: one line, no traceback (what was kept, where a command says)
+        print(f"paintjax {args.command}: {err or 'interrupted'}", file=sys.stderr)
+        return 130
     except OSError as err:  # e.g. a full disk or an unwritable cache folder ($PAINTJAX_CACHE)
         print(f"paintjax {args.command}: error: {err}", file=sys.stderr)
         return 1

@@ -7,7 +7,7 @@ import numpy as np
 from .._cache import enable_compilation_cache
 from .._pipeline import BRDF_METHODS, BRDFS, DEFAULT_PRIMER_ALBEDO, DEFAULT_TARGET_SE, simulate
 from ..wave._profiles import CORRELATIONS
-from ._common import add_array_arguments, add_json_argument, add_output_argument, parse_floats, print_json
+from ._common import add_array_arguments, add_json_argument, add_output_argument, parse_distinct, parse_floats, print_json
 
 
 def register(sub) -> None:
@@ -95,7 +95,7 @@ def run(args) -> int:
         thickness=args.thickness, d50=args.d50, platelet_thickness=args.platelet_thickness, brdf=args.brdf, brdf_method=args.brdf_method, correlation=args.correlation,
         reflectance=args.reflectance, primer_albedo=args.primer_albedo,
         waviness=args.waviness, illumination_deg=args.illumination,
-        aspecular_deg=None if args.aspecular is None else parse_floats(args.aspecular, "--aspecular"),
+        aspecular_deg=None if args.aspecular is None else parse_distinct(args.aspecular, "--aspecular"),
         measured=None if args.measured is None else parse_floats(args.measured, "--measured"),
         rays=args.rays, seed=args.seed, single_scatter=args.single_scatter, spectral=args.spectral, progress=True,
     )

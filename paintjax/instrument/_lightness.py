@@ -41,8 +41,23 @@ def lightness_np(Y) -> np.ndarray:
     return np.asarray(colour.colorimetry.lightness_CIE1976(np.asarray(Y, dtype=float), Y_n=100.0))
 
 
+def _check_reflectance(name: str, R) -> None:
+    """Concrete values only (traced values pass): finite, real and ≥ 0, else a ValueError naming `name`."""
+    if R is None or isinstance(R, (str, bytes)):
+        raise ValueError(f"{name} must be a finite reflectance factor >= 0, got {R!r}")
+    try:
+        a = np.asarray(R)
+    except Exception:  # a JAX tracer: checked where it was concrete
+        return
+    if a.dtype == object or not (np.issubdtype(a.dtype, np.number) or np.issubdtype(a.dtype, np.bool_)) or np.iscomplexobj(a):
+        raise ValueError(f"{name} must be a finite real reflectance factor >= 0, got {R!r}")
+    if np.any(~np.isfinite(a)) or np.any(a < 0):
+        raise ValueError(f"{name} must be a finite reflectance factor >= 0, got {R!r}")
+
+
 def reflectance_factor_to_lightness(R: ArrayLike) -> Float[Array, "..."]:
-    """L* of a reflectance factor R (Y = 100 R)."""
+    """L* of a reflectance factor R (Y = 100 R); concrete R must be finite and ≥ 0 (ValueError)."""
+    _check_reflectance("R", R)
     return lightness(100.0 * jnp.asarray(R))
 
 

@@ -14,7 +14,7 @@ from ._fit import FitResult, fit_least_squares
 from ._forward import CallableForward, ForwardModel
 from ._measured_inputs import MeasuredInputs, posterior_predictive_check
 from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
-from ._posterior import LogPosterior, PosteriorResult, corner_plot, sample_posterior, save_netcdf
+from ._posterior import LogPosterior, PosteriorResult, check_chain, corner_plot, sample_posterior, save_netcdf
 from ._profilometer import (
     SIGMA_DEFINITIONS,
     Profilometer,
@@ -75,6 +75,7 @@ __all__ = [
     "PosteriorResult",
     "corner_plot",
     "sample_posterior",
+    "check_chain",
     "save_netcdf",
     "make_forward",
     "register_forward",

@@ -189,6 +189,14 @@ class LogPosterior:
         U = np.atleast_2d(np.asarray(U, dtype=float))
         return fwd(U[:, cols])
 
+    def description(self, walkers: int) -> str:
+        """What a stored chain must have been sampled for to be resumed: data, model, parameters,
+        priors, inputs and walkers (JSON; `check_chain`)."""
+        return json.dumps({"names": self.names, "measured": self.measured.tolist(), "forward": self.forward.fingerprint(),
+                           "fixed": self.restricted.fixed, "fixed_discrepancy": self.fixed.get("discrepancy"),
+                           "bounds": self.spec.fingerprint(), "instrument_sd": self.instrument_sd, "walkers": int(walkers),
+                           "inputs": None if self.inputs is None else self.inputs.fingerprint()}, sort_keys=True)
+
     def __call__(self, U) -> np.ndarray:
         if self._fns is None:
             self._build()
@@ -217,13 +225,6 @@ def _pool_size(pool) -> int:
     return 2
 
 
-def _meta(lp: LogPosterior, walkers: int) -> str:
-    return json.dumps({"names": lp.names, "measured": lp.measured.tolist(), "forward": lp.forward.fingerprint(),
-                       "fixed": lp.restricted.fixed, "fixed_discrepancy": lp.fixed.get("discrepancy"),
-                       "bounds": lp.spec.fingerprint(), "instrument_sd": lp.instrument_sd, "walkers": walkers,
-                       "inputs": None if lp.inputs is None else lp.inputs.fingerprint()}, sort_keys=True)
-
-
 def sample_posterior(
     forward: ForwardModel,
     measured,
@@ -242,6 +243,7 @@ def sample_posterior(
     seed: int = 0,
     backend_path: str | os.PathLike | None = None,
     resume: bool = True,
+    overwrite: bool = False,
     progress: bool = True,
     pool=None,
     inference_data: bool = True,
@@ -264,7 +266,9 @@ def sample_posterior(
         init: where to start the walkers (a `FitResult` or values); default: a least-squares fit.
         seed: seed of the initial ball and of emcee's generator.
         backend_path: HDF5 file for the chain (None: in memory, no resume).
-        resume: continue a compatible chain found in `backend_path` (else it is restarted).
+        resume: continue the chain found in `backend_path` when it was sampled for the same data,
+            model, parameters, priors and walkers (`check_chain`).
+        overwrite: replace a stored chain that cannot be resumed (default: refuse, ValueError).
         progress: tqdm progress bar.
         pool: optional pool with a `map` method (multiprocessing, MPI); the ensemble is split
             over its workers.
@@ -295,21 +299,14 @@ def sample_posterior(
     fn = lp if pool is None else _PooledLogPosterior(lp, pool, _pool_size(pool))
 
     backend = None
-    meta = _meta(lp, walkers)
+    meta = lp.description(walkers)
     state = None
     if backend_path is not None:
         backend_path = Path(backend_path)
+        resumed = check_chain(backend_path, meta, resume=resume, overwrite=overwrite)
         backend_path.parent.mkdir(parents=True, exist_ok=True)
         backend = emcee.backends.HDFBackend(str(backend_path))
-        old = _read_meta(backend_path) if backend_path.exists() else None
-        try:
-            stored = backend.iteration if backend_path.exists() else 0
-        except OSError as err:  # e.g. a run killed while emcee wrote in place
-            raise ValueError(f"backend_path {str(backend_path)!r} is not a readable emcee chain ({err}); move or delete it to "
-                             "start a new chain") from None
-        if resume and old == meta and stored > 0:
-            state = None  # continue from the stored last sample (and random state)
-        else:
+        if not resumed:
             backend.reset(walkers, p)
             _write_meta(backend_path, meta)
     sampler = emcee.EnsembleSampler(walkers, p, fn, vectorize=True, backend=backend)
@@ -322,7 +319,12 @@ def sample_posterior(
     converged, old_tau = False, None
     while sampler.iteration < max_steps:
         n = min(check_every, max_steps - sampler.iteration)
-        sampler.run_mcmc(state, n, progress=progress, skip_initial_state_check=True)
+        try:
+            sampler.run_mcmc(state, n, progress=progress, skip_initial_state_check=True)
+        except KeyboardInterrupt:
+            kept = ("the chain is not stored (no backend_path)" if backend_path is None else
+                    f"the chain in {str(backend_path)!r} is kept: rerun the same command to resume")
+            raise KeyboardInterrupt(f"interrupted after {sampler.iteration} steps; {kept}") from None
         state = None
         it = sampler.iteration
         tau = sampler.get_autocorr_time(tol=0)
@@ -368,6 +370,47 @@ def _initial_ball(lp: LogPosterior, init, walkers: int, rng, seed: int) -> np.nd
     if bad.any():
         U[bad] = u0
     return U
+
+
+def check_chain(backend_path, meta: str, *, resume: bool = True, overwrite: bool = False) -> bool:
+    """Whether the chain file `backend_path` will be resumed; a stored chain is never silently replaced.
+
+    Arguments:
+        backend_path: the HDF5 chain file (absent: a new chain).
+        meta: the run's description (`LogPosterior.description`).
+        resume: continue a stored chain of the same description.
+        overwrite: allow replacing a stored chain that is not resumed.
+
+    Returns:
+        True when the stored chain continues, False when a new one starts.
+
+    Raises:
+        ValueError: the path is a folder or not a readable emcee chain, or it holds steps of a chain
+            that is not resumed (other data, model, parameters, priors or walkers, or resume=False)
+            and overwrite is False.
+    """
+    import emcee
+
+    path = Path(backend_path)
+    if not path.exists():
+        return False
+    if path.is_dir():
+        raise ValueError(f"backend_path must be a file for the chain, but {str(path)!r} is a folder")
+    try:
+        stored = emcee.backends.HDFBackend(str(path), read_only=True).iteration
+    except (OSError, KeyError, AttributeError, ValueError) as err:
+        raise ValueError(f"backend_path {str(path)!r} is not a readable emcee chain ({type(err).__name__}); it is left as it is: "
+                         "move or delete it, or give a new path") from None
+    if stored == 0:
+        return False
+    same = _read_meta(path) == meta
+    if same and resume:
+        return True
+    if overwrite:
+        return False
+    why = "was sampled for other data, model, parameters, priors or walkers" if not same else "is not resumed (resume=False)"
+    raise ValueError(f"backend_path {str(path)!r} holds {stored} steps of a chain that {why}; it is kept. Give a new path, "
+                     "or overwrite=True to replace it")
 
 
 def _write_meta(path: Path, meta: str) -> None:

@@ -52,7 +52,7 @@ import numpy as np
 from jax.scipy.linalg import lu_factor, lu_solve
 from jaxtyping import Array, Complex, Float
 
-from ..optics._aluminium import aluminium_index
+from ..optics._aluminium import _check_wavelength, aluminium_index
 from ._beam import incident_field, incident_power, max_incidence_deg
 from ._coherent import (
     COHERENT_WINDOW,
@@ -259,6 +259,35 @@ def _check_angles(name: str, deg, lo: float, hi: float) -> np.ndarray:
     return a
 
 
+#: Reflected + absorbed power above 1 + this at any incidence marks an unconverged solve (a converged
+#: one conserves energy to ~1e-3; the truncated profile's runoff loses ≲ 2 % near grazing, not refused).
+WAVE_ENERGY_TOLERANCE = 0.01
+#: Most points on one profile (a dense complex system of this order per profile and polarisation).
+MAX_PROFILE_POINTS = 8000
+
+
+def check_energy(reflected, absorbed, incidence_deg, *, solved=None, what: str = "the wave solution",
+                 fix: str = "more points per wavelength or a gentler slope") -> None:
+    """Refuse an unconverged solve: a ValueError with the energy ledger where reflected + absorbed
+    power exceeds 1 + `WAVE_ENERGY_TOLERANCE` at any incidence (`solved`: where `absorbed` was solved;
+    elsewhere the reflected power alone is checked)."""
+    R = np.atleast_1d(np.asarray(reflected, float))
+    A = np.broadcast_to(np.asarray(absorbed, float), R.shape)
+    inc = np.broadcast_to(np.asarray(incidence_deg, float), R.shape)
+    total = np.where(np.ones(R.shape, bool) if solved is None else np.asarray(solved, bool), R + A, R)
+    if np.all(total <= 1.0 + WAVE_ENERGY_TOLERANCE):
+        return
+    j = int(np.argmax(total))
+    raise ValueError(f"{what} reflects {R[j]:.3g} and absorbs {A[j]:.3g} of the incident power at {inc[j]:g}° incidence "
+                     f"(sum {total[j]:.3g} > 1 + {WAVE_ENERGY_TOLERANCE:g}), so it is not converged; use {fix}")
+
+
+def _check_profile_points(points: float) -> None:
+    if not points <= MAX_PROFILE_POINTS:
+        raise ValueError(f"length_um / spacing = {points:.4g} points on one profile, more than {MAX_PROFILE_POINTS}: shorten "
+                         "length_um, or raise wavelength_um or lower points_per_wavelength")
+
+
 def _check_scalar(name: str, value, lo: float, hi: float) -> float:
     try:
         v = float(value)
@@ -318,6 +347,7 @@ def solve_profiles(
     """
     wavelength_um, n_medium, chans, k = _medium(wavelength_um, n_medium, boundary, polarization, metal_index)
     n = int(profiles.x.shape[0])
+    _check_profile_points(n)
     dx = float(profiles.spacing)
     length = n * dx
     if dx > wavelength_um / n_medium / 4.0:
@@ -492,7 +522,10 @@ def profile_averaged_lobes(
         seed = int(seed)
     except (TypeError, ValueError):
         raise ValueError(f"seed must be an integer, got {seed!r}") from None
+    if boundary == "impedance" and metal_index is None:
+        _check_wavelength(wavelength_um)  # the aluminium model's range, before any mesh is built
     dx = default_spacing(wavelength_um, n_medium, points_per_wavelength, sigma_um=float(sigma_um), tau_um=float(tau_um), correlation=correlation)
+    _check_profile_points(_check_scalar("length_um", length_um, 0.0, 1e6) / dx)
     profiles = synthesize_profiles(
         jax.random.PRNGKey(seed), sigma_um, tau_um, length_um=length_um, spacing_um=dx,
         num_profiles=num_profiles, correlation=correlation,
