@@ -79,7 +79,15 @@ def _arrays_digest(arrays: dict) -> str:
 
 
 def cache_path(kind: str, inputs: dict, folder: str | os.PathLike | None = None) -> Path:
-    folder = default_cache_dir() if folder is None else Path(folder)
+    if folder is None:
+        folder, name = default_cache_dir(), "the cache folder ($PAINTJAX_CACHE, default ~/.cache/paintjax)"
+    else:
+        folder, name = Path(folder), "cache_dir"
+    probe = folder
+    while not probe.exists() and probe != probe.parent:  # the nearest existing part must be a folder
+        probe = probe.parent
+    if not probe.is_dir():
+        raise ValueError(f"{name} must be a folder, but {str(probe)!r} is a file")
     return folder / f"{kind}-{cache_key(kind, inputs)[:24]}.npz"
 
 

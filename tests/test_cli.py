@@ -85,6 +85,10 @@ def test_readable_table(capsys):
         (["fit", "--posterior", "--walkers", "1"], "--walkers must be even"),
         (["fit", "--posterior", "--walkers", "13"], "--walkers must be even"),
         (["fit", "--overwrite"], "--overwrite applies to --chain"),
+        (["simulate", "--rays", "1000000000000", "--brdf", "mirror"], "rays must be at most 1,000,000,000"),
+        (["lobe", "--profile", "/tmp"], "--profile must be a two-column text file, but '/tmp' is a folder"),
+        (["lobe", "--profile", "x.csv", "--units", "furlong"], "--units must be one of"),
+        (["brdf", "--cache-dir", "/proc/version"], "--cache-dir must be a folder"),
         (["simulate", "--d50", "0"], "d50"),
         (["simulate", "--platelet-thickness", "25"], "platelet_thickness"),
         (["simulate", "--pvc", "0.45"], "pvc"),
@@ -104,6 +108,14 @@ def test_bad_input_is_a_one_line_error(argv, needle, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert needle in err and "Traceback" not in err
+
+
+def test_cache_env_pointing_at_a_file_is_named(tmp_path, monkeypatch, capsys):
+    (tmp_path / "file").write_text("x")
+    monkeypatch.setenv("PAINTJAX_CACHE", str(tmp_path / "file" / "sub"))
+    assert main(["brdf", "--profiles", "2"]) == 2
+    err = capsys.readouterr().err
+    assert "$PAINTJAX_CACHE" in err and "is a file" in err and "Traceback" not in err
 
 
 def test_lobe_refuses_an_unconverged_solve(tmp_path, capsys):

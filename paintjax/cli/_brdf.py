@@ -14,7 +14,7 @@ THETA_O_DEG = np.arange(-89.0, 90.0, 1.0)
 
 
 #: API argument → flag, for error messages.
-API_FLAGS = {"sigma_um": "--sigma", "tau_um": "--tau", "wavelength_um": "--wavelength", "n_medium": "--n", "length_um": "--length", "num_profiles": "--profiles"}
+API_FLAGS = {"sigma_um": "--sigma", "tau_um": "--tau", "wavelength_um": "--wavelength", "n_medium": "--n", "length_um": "--length", "num_profiles": "--profiles", "cache_dir": "--cache-dir"}
 
 
 def register(sub) -> None:

@@ -39,7 +39,8 @@ def register(sub) -> None:
 
 #: API argument → flag, for error messages.
 API_FLAGS = {"sigma_um": "--sigma", "tau_um": "--tau", "wavelength_um": "--wavelength", "n_medium": "--n", "length_um": "--length",
-             "num_profiles": "--profiles", "points_per_wavelength": "--ppw", "incidence_deg": "--incidence"}
+             "num_profiles": "--profiles", "points_per_wavelength": "--ppw", "incidence_deg": "--incidence",
+             "profile must": "--profile must", "units must": "--units must"}
 
 
 def compute(args) -> dict:

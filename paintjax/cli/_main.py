@@ -16,12 +16,19 @@ from pathlib import Path
 COMMANDS = ("demo", "microfacet", "array", "brdf", "lobe", "fit", "design", "simulate", "table1")
 
 
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse with its usage errors on one line (`paintjax CMD: error: …`, exit status 2); --help is unchanged."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _OneLineParser(
         prog="paintjax",
         description="Hybrid ray-wave appearance model of metallic paint (lengths in µm, angles in degrees).",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_OneLineParser)
     for name in COMMANDS:
         importlib.import_module(f"paintjax.cli._{name}").register(sub)
     return parser
@@ -57,7 +64,10 @@ def main(argv: list[str] | None = None) -> int:
 
     jax.config.update("jax_enable_x64", True)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as done:  # --help (0) or a usage error (2, already printed on one line)
+        return int(done.code or 0)
     try:
         _check_output_folder(getattr(args, "out", None))
         result = args.func(args)

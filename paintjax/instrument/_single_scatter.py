@@ -183,6 +183,10 @@ def microfacet_reflectance_factor(
     Returns:
         Reflectance factor per detector.
     """
+    if not isinstance(geometry, Geometry):
+        raise ValueError(f"geometry must be a Geometry (paintjax.ma98_geometry), got {type(geometry).__name__}")
+    if not isinstance(tilt, GammaTilt):
+        raise ValueError(f"tilt must be a GammaTilt (the platelet tilt law), got {type(tilt).__name__}")
     check_coat_index(n)
     if platelet is None:
         platelet = MirrorBRDF(n_binder=n)

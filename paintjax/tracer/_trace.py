@@ -212,11 +212,23 @@ def _seed_state(seed) -> int:
     return (x ^ (x >> 29) ^ (x >> 47)) & 0xFFFFFFFF
 
 
+#: Most rays one trace call accepts (≈ 9 h at 30k rays/s on 2 CPU cores).
+MAX_RAYS = 1_000_000_000
+#: Seconds between `heartbeat` calls inside a round.
+HEARTBEAT_SECONDS = 5.0
+
+
 def check_ray_count(rays, options: TracerOptions | None = None, name: str = "rays") -> None:
-    """At least one ray per batch of the batch-means standard error (`TracerOptions.batches`)."""
+    """At least one ray per batch of the batch-means standard error (`TracerOptions.batches`), at most `MAX_RAYS`."""
     batches = (options or TracerOptions()).batches
-    if int(rays) < batches:
+    try:
+        n = int(rays)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be an integer, got {rays!r}") from None
+    if n < batches:
         raise ValueError(f"{name} must be at least {batches} (one per batch of the standard error), got {rays!r}")
+    if n > MAX_RAYS:
+        raise ValueError(f"{name} must be at most {MAX_RAYS:,} (≈ 9 h at 30k rays/s); split the work into runs with different seeds, got {rays!r}")
 
 
 def _check_range(name, value, lo, hi, lo_open=False):
@@ -292,6 +304,7 @@ def trace(
     max_rays: int | None = None,
     options: TracerOptions | None = None,
     progress: Callable[[int, np.ndarray, float], None] | None = None,
+    heartbeat: Callable[[float, float], None] | None = None,
 ) -> TraceResult:
     """Trace rays through a platelet basecoat under a flat or wavy clearcoat; reflectance factor and L* per detector.
 
@@ -317,6 +330,8 @@ def trace(
         options: `TracerOptions`.
         progress: called after every round as `progress(rays, L_star_se, seconds)` (rays traced so
             far, the L* standard errors per detector, seconds since tracing began); None: silent.
+        heartbeat: called every `HEARTBEAT_SECONDS` inside a round as `heartbeat(fraction of the
+            round's rays started, seconds since tracing began)`, for a progress line with an ETA.
 
     Returns:
         A `TraceResult`. Warns (RuntimeWarning) when light reached a detector in fewer than half the
@@ -332,6 +347,8 @@ def trace(
         _check_range("target_se_lstar", target_se_lstar, 0.0, 100.0, lo_open=True)
         if max_rays is not None and int(max_rays) < int(rays):
             raise ValueError(f"max_rays must be at least the first round's rays ({int(rays)}), got {max_rays!r}")
+        if max_rays is not None:
+            check_ray_count(max_rays, opt, "max_rays")
     brdf = MirrorBRDF(n_binder=n) if brdf is None else brdf
     if not isinstance(brdf, AbstractPlateletBRDF):
         raise ValueError(f"brdf must be an AbstractPlateletBRDF, got {type(brdf).__name__}")
@@ -375,7 +392,7 @@ def trace(
     per_forward = sum(frac for _, frac in passes)  # rays of all passes per forward ray
     n_local = -(-int(np.ceil(int(rays) / per_forward)) // ndev)
     limit_local = -(-int(np.ceil(int(max_rays if max_rays is not None else 64 * int(rays)) / per_forward)) // ndev)
-    t0 = time.perf_counter()
+    t0 = beat = time.perf_counter()
     while True:
         parts = []
         for item in live:
@@ -385,8 +402,12 @@ def trace(
             while True:
                 state = run(sc, key, state, nl, single)
                 busy = bool(jnp.any(state[0][3]) | jnp.any(state[0][-1] != 0))
-                if not busy and int(jnp.min(state[2])) >= target:
+                started = int(jnp.min(state[2]))
+                if not busy and started >= target:
                     break
+                if heartbeat is not None and time.perf_counter() - beat >= HEARTBEAT_SECONDS:
+                    beat = time.perf_counter()
+                    heartbeat(min(started, target) / target, beat - t0)
             item[2] = state
             parts.append(_summarise(np.asarray(state[1], dtype=float), m, opt.batches))
         est, se, per_batch, ledger, N = _combine(parts, m)

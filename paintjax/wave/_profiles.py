@@ -218,6 +218,8 @@ def load_line_scan(path: str | os.PathLike, *, units: str = "um") -> LineScan:
     """
     if units not in UNITS_TO_UM:
         raise ValueError(f"units must be one of {sorted(UNITS_TO_UM)}, got {units!r}")
+    if os.path.isdir(path):
+        raise ValueError(f"profile must be a two-column text file, but {os.fspath(path)!r} is a folder")
     if not os.path.isfile(path):
         raise ValueError(f"profile file not found: {os.fspath(path)!r}")
     rows = []

@@ -262,6 +262,8 @@ def _check_angles(name: str, deg, lo: float, hi: float) -> np.ndarray:
 #: Reflected + absorbed power above 1 + this at any incidence marks an unconverged solve (a converged
 #: one conserves energy to ~1e-3; the truncated profile's runoff loses ≲ 2 % near grazing, not refused).
 WAVE_ENERGY_TOLERANCE = 0.01
+#: Largest rms roughness and correlation length of a synthesised surface [µm].
+MAX_SIGMA_UM, MAX_TAU_UM = 10.0, 100.0
 #: Most points on one profile (a dense complex system of this order per profile and polarisation).
 MAX_PROFILE_POINTS = 8000
 
@@ -522,6 +524,8 @@ def profile_averaged_lobes(
         seed = int(seed)
     except (TypeError, ValueError):
         raise ValueError(f"seed must be an integer, got {seed!r}") from None
+    sigma_um = _check_scalar("sigma_um", sigma_um, 0.0, MAX_SIGMA_UM)
+    tau_um = _check_scalar("tau_um", tau_um, 0.0, MAX_TAU_UM)
     if boundary == "impedance" and metal_index is None:
         _check_wavelength(wavelength_um)  # the aluminium model's range, before any mesh is built
     dx = default_spacing(wavelength_um, n_medium, points_per_wavelength, sigma_um=float(sigma_um), tau_um=float(tau_um), correlation=correlation)

@@ -1,0 +1,73 @@
+"""Property-based bad input over the CLI: random out-of-range, non-finite and non-numeric values.
+
+For every sub-command and numeric option below, Hypothesis draws values outside the option's valid
+range (and text that is not a number). Invariants: exit status 2, one line on stderr that names the
+option, no traceback, no output folder created. Bounded: a few examples per option, well under a
+minute on 2 cores (every case must be refused before any work).
+"""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from paintjax.cli._main import main
+
+#: (command, option, valid interval's lower and upper end (None: no upper end), extra arguments):
+#: values below the lower end or above the upper end are invalid (the ends themselves are not drawn).
+RANGES = [
+    ("lobe", "--sigma", 0.0, 10.0, []),
+    ("lobe", "--tau", 0.0, 100.0, []),
+    ("lobe", "--wavelength", 0.2, 12.0, []),
+    ("lobe", "--n", 0.0, 5.0, []),
+    ("lobe", "--step", 0.0, 10.0, []),
+    ("brdf", "--sigma", 0.0, 10.0, []),
+    ("brdf", "--tau", 0.0, 1e3, []),
+    ("brdf", "--n", 1.0, 3.0, []),
+    ("microfacet", "--shape", 0.0, None, []),
+    ("microfacet", "--scale", 0.0, None, []),
+    ("microfacet", "--n", 1.0, 3.0, []),
+    ("microfacet", "--reflectance", 0.0, 1.0, []),
+    ("simulate", "--primer-albedo", 0.0, 1.0, []),
+    ("simulate", "--shape", 0.0, None, []),
+    ("simulate", "--waviness", 0.0, 15.0, []),
+    ("simulate", "--rays", 32.0, 1e9, []),
+    ("simulate", "--pvc", 0.0, 0.4, []),
+    ("array", "--max-attempts", 0.0, None, ["--no-plots"]),
+    ("array", "--tile", 0.0, None, ["--no-plots"]),
+    ("fit", "--starts", 1.0, None, []),
+    ("fit", "--max-steps", 1.0, None, []),
+    ("fit", "--walkers", 2.0, None, ["--posterior"]),
+    ("fit", "--tilt-platelets", 0.0, 1e6, ["--posterior", "--inputs", "rq"]),
+    ("table1", "--target-se", 0.0, None, []),
+]
+
+
+def _invalid(lo, hi):
+    below = st.floats(max_value=lo, exclude_max=True, allow_nan=False, allow_infinity=True)
+    parts = [below.map(repr), st.just("nan"), st.text(alphabet="abcxyz,;", min_size=1, max_size=5)]
+    if hi is not None:
+        parts += [st.floats(min_value=hi, exclude_min=True, allow_nan=False, allow_infinity=True).map(repr)]
+    return st.one_of(parts)
+
+
+def _check(argv, option, tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(argv + (["--out", str(out)] if argv[0] != "microfacet" else []))
+    err = capsys.readouterr().err
+    assert code == 2, (argv, code, err)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert option.lstrip("-").replace("-", "_") in lines[0].replace("-", "_"), (option, lines[0])
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("command,option,lo,hi,extra", RANGES, ids=[f"{c}{o}" for c, o, *_ in RANGES])
+def test_out_of_range_options_are_refused(command, option, lo, hi, extra, tmp_path_factory, capsys):
+    @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture], derandomize=True)
+    @given(value=_invalid(lo, hi))
+    def case(value):
+        _check([command, *extra, f"{option}={value}"], option, tmp_path_factory.mktemp("f"), capsys)
+
+    case()
