@@ -8,6 +8,8 @@ minute on 2 cores (every case must be refused before any work).
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -21,10 +23,10 @@ RANGES = [
     ("lobe", "--tau", 0.0, 100.0, []),
     ("lobe", "--wavelength", 0.2, 12.0, []),
     ("lobe", "--n", 0.0, 5.0, []),
-    ("lobe", "--step", 0.0, 10.0, []),
+    ("lobe", "--step", 0.01, 10.0, []),
     ("brdf", "--sigma", 0.0, 10.0, []),
     ("brdf", "--tau", 0.0, 1e3, []),
-    ("brdf", "--n", 1.0, 3.0, []),
+    ("brdf", "--n", 1.0, 5.0, []),
     ("microfacet", "--shape", 0.0, None, []),
     ("microfacet", "--scale", 0.0, None, []),
     ("microfacet", "--n", 1.0, 3.0, []),
@@ -35,7 +37,10 @@ RANGES = [
     ("simulate", "--rays", 32.0, 1e9, []),
     ("simulate", "--pvc", 0.0, 0.4, []),
     ("array", "--max-attempts", 0.0, None, ["--no-plots"]),
-    ("array", "--tile", 0.0, None, ["--no-plots"]),
+    ("array", "--tile", 0.0, 5000.0, ["--no-plots"]),
+    ("lobe", "--profiles", 1.0, 2000.0, []),
+    ("design", "--starts", 1.0, None, ["--target", "140,110,60,35,30"]),
+    ("design", "--tolerance", 0.0, None, ["--target", "140,110,60,35,30"]),
     ("fit", "--starts", 1.0, None, []),
     ("fit", "--max-steps", 1.0, None, []),
     ("fit", "--walkers", 2.0, None, ["--posterior"]),
@@ -44,9 +49,19 @@ RANGES = [
 ]
 
 
-def _invalid(lo, hi):
+#: Options that take integers: drawn as integers outside the range (and as text).
+INTEGER_OPTIONS = {"--rays", "--max-attempts", "--starts", "--max-steps", "--walkers", "--tilt-platelets", "--profiles"}
+
+
+def _invalid(option, lo, hi):
+    text = st.text(alphabet="abcxyz,;", min_size=1, max_size=5)
+    if option in INTEGER_OPTIONS:
+        parts = [st.integers(max_value=math.ceil(lo) - 1).map(str), text]
+        if hi is not None:
+            parts.append(st.integers(min_value=math.floor(hi) + 1).map(str))
+        return st.one_of(parts)
     below = st.floats(max_value=lo, exclude_max=True, allow_nan=False, allow_infinity=True)
-    parts = [below.map(repr), st.just("nan"), st.text(alphabet="abcxyz,;", min_size=1, max_size=5)]
+    parts = [below.map(repr), st.just("nan"), text]
     if hi is not None:
         parts += [st.floats(min_value=hi, exclude_min=True, allow_nan=False, allow_infinity=True).map(repr)]
     return st.one_of(parts)
@@ -54,7 +69,7 @@ def _invalid(lo, hi):
 
 def _check(argv, option, tmp_path, capsys):
     out = tmp_path / "out"
-    code = main(argv + (["--out", str(out)] if argv[0] != "microfacet" else []))
+    code = main(argv + (["--out", str(out)] if argv[0] not in ("microfacet", "design") else []))
     err = capsys.readouterr().err
     assert code == 2, (argv, code, err)
     lines = [ln for ln in err.splitlines() if ln.strip()]
@@ -66,7 +81,7 @@ def _check(argv, option, tmp_path, capsys):
 @pytest.mark.parametrize("command,option,lo,hi,extra", RANGES, ids=[f"{c}{o}" for c, o, *_ in RANGES])
 def test_out_of_range_options_are_refused(command, option, lo, hi, extra, tmp_path_factory, capsys):
     @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture], derandomize=True)
-    @given(value=_invalid(lo, hi))
+    @given(value=_invalid(option, lo, hi))
     def case(value):
         _check([command, *extra, f"{option}={value}"], option, tmp_path_factory.mktemp("f"), capsys)
 

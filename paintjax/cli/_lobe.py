@@ -49,9 +49,9 @@ def compute(args) -> dict:
     from ..wave._profiles import load_line_scan, process_line_scan, profile_statistics, profiles_from_heights
     from ..wave._solver import default_spacing, solve_profiles
 
-    if not (0.0 < args.step <= 10.0):
-        raise ValueError(f"--step must lie in (0, 10] degrees, got {args.step!r}")
-    theta_s = np.arange(-90.0, 90.0 + 1e-9, args.step)
+    if not (0.01 <= args.step <= 10.0):
+        raise ValueError(f"--step must lie in [0.01, 10] degrees, got {args.step!r}")
+    theta_s = np.clip(np.arange(-90.0, 90.0 + 1e-9, args.step), -90.0, 90.0)
     if args.profile:
         scan = load_line_scan(args.profile, units=args.units)
         if args.raw:

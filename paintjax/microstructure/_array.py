@@ -245,6 +245,10 @@ def check_pvc(pvc) -> float:
     return pvc_f
 
 
+#: Largest tile side [µm] of a generated array (memory and time of the generator, the grid and the tracer).
+MAX_TILE_UM = 5000.0
+
+
 def generate_platelet_array(
     key_or_seed,
     *,
@@ -301,6 +305,8 @@ def generate_platelet_array(
         if len(Ls) != 2:
             raise ValueError(f"tile must be a side or (Lx, Ly) [µm], got {tile!r}")
         L = tuple(positive_finite("tile", v, "µm") for v in Ls)
+    if max(L) > MAX_TILE_UM:
+        raise ValueError(f"tile sides must be at most {MAX_TILE_UM:g} µm (≈ 2 × 10⁵ platelets at PVC 0.1 in a 20 µm basecoat), got {tile!r}")
     if min(L) < min_tile:
         raise ValueError(
             f"tile {L} µm is smaller than the largest platelet allows: each side must be ≥ √2·max_width + "

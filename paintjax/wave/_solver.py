@@ -252,10 +252,15 @@ def solve_batch(h, dh, d2h, x, inc, ang, etas, k, dx, g, *, kinds, band, batch_s
     return jax.lax.map(one, (h, dh, d2h), batch_size=batch_size)
 
 
+#: Most scattering angles of one solve.
+MAX_ANGLES = 20000
+
+
 def _check_angles(name: str, deg, lo: float, hi: float) -> np.ndarray:
     a = np.atleast_1d(np.asarray(deg, dtype=float))
-    if a.ndim != 1 or a.size == 0 or not np.all(np.isfinite(a)) or np.any(a < lo) or np.any(a > hi):
-        raise ValueError(f"{name} must be a non-empty 1-D list of angles in [{lo:.4g}, {hi:.4g}] degrees, got {deg!r}")
+    if a.ndim != 1 or a.size == 0 or a.size > MAX_ANGLES or not np.all(np.isfinite(a)) or np.any(a < lo) or np.any(a > hi):
+        got = repr(deg) if a.size <= 8 else f"{a.size} values from {np.nanmin(a):.6g} to {np.nanmax(a):.6g}"
+        raise ValueError(f"{name} must be a non-empty 1-D list of at most {MAX_ANGLES} angles in [{lo:.4g}, {hi:.4g}] degrees, got {got}")
     return a
 
 
@@ -264,6 +269,8 @@ def _check_angles(name: str, deg, lo: float, hi: float) -> np.ndarray:
 WAVE_ENERGY_TOLERANCE = 0.01
 #: Largest rms roughness and correlation length of a synthesised surface [µm].
 MAX_SIGMA_UM, MAX_TAU_UM = 10.0, 100.0
+#: Most profiles of one average (each is a dense solve; the tables use 40).
+MAX_PROFILES = 2000
 #: Most points on one profile (a dense complex system of this order per profile and polarisation).
 MAX_PROFILE_POINTS = 8000
 
@@ -524,6 +531,8 @@ def profile_averaged_lobes(
         seed = int(seed)
     except (TypeError, ValueError):
         raise ValueError(f"seed must be an integer, got {seed!r}") from None
+    if isinstance(num_profiles, bool) or not isinstance(num_profiles, (int, np.integer)) or not 1 <= num_profiles <= MAX_PROFILES:
+        raise ValueError(f"num_profiles must be an integer in [1, {MAX_PROFILES}], got {num_profiles!r}")
     sigma_um = _check_scalar("sigma_um", sigma_um, 0.0, MAX_SIGMA_UM)
     tau_um = _check_scalar("tau_um", tau_um, 0.0, MAX_TAU_UM)
     if boundary == "impedance" and metal_index is None:
