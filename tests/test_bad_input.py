@@ -79,3 +79,43 @@ def test_lightness_is_still_differentiable_and_jittable():
 
     assert np.isfinite(float(jax.jit(paintjax.reflectance_factor_to_lightness)(0.3)))
     assert float(jax.grad(paintjax.reflectance_factor_to_lightness)(0.3)) > 0
+
+
+# ------------------------------------------------------------------------------------------ property-based
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+ANY_FLOAT = st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**6, 10**6), st.text(max_size=4), st.none())
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(R=ANY_FLOAT)
+def test_lightness_of_anything_is_a_finite_number_or_a_named_error(R):
+    try:
+        L = float(paintjax.reflectance_factor_to_lightness(R))
+    except ValueError as err:
+        assert str(err).startswith("R must be")
+        return
+    assert math.isfinite(L) and L >= 0.0
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(shape=ANY_FLOAT, scale=ANY_FLOAT)
+def test_gamma_tilt_of_anything_is_valid_or_a_named_error(shape, scale):
+    try:
+        tilt = paintjax.GammaTilt(shape, scale)
+    except ValueError as err:
+        assert "shape" in str(err) or "scale" in str(err)
+        return
+    assert float(tilt.shape) > 0 and float(tilt.scale_deg) > 0
+
+
+@settings(max_examples=40, deadline=None, derandomize=True)
+@given(illumination=ANY_FLOAT)
+def test_geometry_of_anything_is_valid_or_a_named_error(illumination):
+    try:
+        g = paintjax.ma98_geometry(illumination)
+    except ValueError as err:
+        assert "illumination" in str(err)
+        return
+    assert np.all(np.isfinite(np.asarray(g.detectors_air())))

@@ -85,6 +85,8 @@ def test_readable_table(capsys):
         (["fit", "--posterior", "--walkers", "1"], "--walkers must be even"),
         (["fit", "--posterior", "--walkers", "13"], "--walkers must be even"),
         (["fit", "--overwrite"], "--overwrite applies to --chain"),
+        (["fit", "--posterior", "--chain", "/proc/version/c.h5"], "--chain '/proc/version/c.h5' cannot be written"),
+        (["design", "--target", "140,110,60,35,30", "--weights", "0,0,0,0,0"], "weights must be 5 finite non-negative numbers, not all zero"),
         (["simulate", "--rays", "1000000000000", "--brdf", "mirror"], "rays must be at most 1,000,000,000"),
         (["lobe", "--profile", "/tmp"], "--profile must be a two-column text file, but '/tmp' is a folder"),
         (["lobe", "--profile", "x.csv", "--units", "furlong"], "--units must be one of"),
@@ -151,6 +153,34 @@ def test_chain_checks_come_before_the_fit(tmp_path, capsys):
     assert "--chain" in err and "not a readable emcee chain" in err and "Traceback" not in err
     assert path.read_text() == "not a chain"
     assert time.perf_counter() - t0 < 15.0  # no fit ran (a fit takes 20–36 s)
+
+
+def test_a_foreign_chain_is_kept(tmp_path, capsys):
+    """A --chain holding steps of another run is refused before the fit, named, and left byte-identical;
+    --overwrite is offered."""
+    import emcee
+
+    path = tmp_path / "other.h5"
+    sampler = emcee.EnsembleSampler(8, 2, lambda x: -0.5 * float(x @ x), backend=emcee.backends.HDFBackend(str(path)))
+    sampler.run_mcmc(np.random.default_rng(0).standard_normal((8, 2)), 5)
+    before = path.read_bytes()
+    assert main(["fit", "--posterior", "--chain", str(path), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "--chain" in err and "holds 5 steps" in err and "--overwrite" in err and "Traceback" not in err
+    assert path.read_bytes() == before
+
+
+def test_ctrl_c_is_one_line(monkeypatch, capsys):
+    """Ctrl-C inside any command: exit status 130 and one line, no traceback."""
+    import paintjax.cli._microfacet as microfacet
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(microfacet, "compute", interrupted)
+    assert main(["microfacet"]) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "paintjax microfacet: interrupted"
 
 
 def test_undefined_values_are_null_in_json(tmp_path):

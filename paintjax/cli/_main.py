@@ -75,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"paintjax {args.command}: error: {_as_flags(str(err), args.command)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as err:  # Ctrl-C: one line, no traceback (what was kept, where a command says)
-        print(f"paintjax {args.command}: {err or 'interrupted'}", file=sys.stderr)
+        print(f"paintjax {args.command}: {str(err) or 'interrupted'}", file=sys.stderr)
         return 130
     except OSError as err:  # e.g. a full disk or an unwritable cache folder ($PAINTJAX_CACHE)
         print(f"paintjax {args.command}: error: {err}", file=sys.stderr)

@@ -85,7 +85,10 @@ class Geometry(eqx.Module):
 
 
 def _validate_polar(name: str, values) -> np.ndarray:
-    v = np.atleast_1d(np.asarray(values, dtype=float))
+    try:
+        v = np.atleast_1d(np.asarray(values, dtype=float))
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be finite polar angles within ±{MAX_POLAR_DEG}°, got {values!r}") from None
     if v.size == 0 or np.any(~np.isfinite(v)) or np.any(np.abs(v) > MAX_POLAR_DEG):
         raise ValueError(f"{name} must be finite polar angles within ±{MAX_POLAR_DEG}°, got {values!r}")
     return v
@@ -93,7 +96,10 @@ def _validate_polar(name: str, values) -> np.ndarray:
 
 def _validate_aperture(name: str, value: float, polar_deg=0.0) -> float:
     """Aperture half-angle in [0, 20]° whose cone around every direction of `polar_deg` stays above the horizon."""
-    value = float(value)
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must lie in [0, 20] degrees, got {value!r}") from None
     if not (0.0 <= value <= 20.0):
         raise ValueError(f"{name} must lie in [0, 20] degrees, got {value!r}")
     steepest = float(np.max(np.abs(np.asarray(polar_deg, dtype=float))))

@@ -393,6 +393,11 @@ def check_chain(backend_path, meta: str, *, resume: bool = True, overwrite: bool
 
     path = Path(backend_path)
     if not path.exists():
+        probe = path.parent.absolute()
+        while not probe.exists():  # the nearest existing folder must let us create the rest
+            probe = probe.parent
+        if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+            raise ValueError(f"backend_path {str(path)!r} cannot be written: {str(probe)!r} is not a writable folder")
         return False
     if path.is_dir():
         raise ValueError(f"backend_path must be a file for the chain, but {str(path)!r} is a folder")

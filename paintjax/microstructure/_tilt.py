@@ -21,18 +21,17 @@ _INV_CDF_POINTS = 4097
 
 def check_gamma_parameters(shape, scale_deg) -> None:
     """Raise a ValueError naming the parameter if the gamma law is invalid (concrete values only)."""
+    if isinstance(shape, jax.core.Tracer) or isinstance(scale_deg, jax.core.Tracer):
+        return  # checked where the values are concrete
     for name, v, hi in (("shape", shape, 1e3), ("scale", scale_deg, 90.0)):
+        unit = " degrees" if name == "scale" else ""
         try:
             a = np.asarray(v, dtype=float)
         except (TypeError, ValueError):
-            continue  # traced
+            raise ValueError(f"tilt gamma {name} must be a number in (0, {hi:g}]{unit}, got {v!r}") from None
         if np.any(~np.isfinite(a)) or np.any(a <= 0) or np.any(a > hi):
-            unit = " degrees" if name == "scale" else ""
             raise ValueError(f"tilt gamma {name} must lie in (0, {hi:g}]{unit}, got {v!r}")
-    try:
-        k, th = np.asarray(shape, dtype=float), np.asarray(scale_deg, dtype=float)
-    except (TypeError, ValueError):
-        return  # traced
+    k, th = np.asarray(shape, dtype=float), np.asarray(scale_deg, dtype=float)
     from scipy.special import gammainc
 
     if np.any(gammainc(k, MAX_TILT_DEG / th) < 1e-12):  # the law truncated to [0, 90]° would be empty
