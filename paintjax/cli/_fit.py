@@ -8,6 +8,8 @@ import time
 from .._cache import enable_compilation_cache
 from ._common import add_json_argument, parse_floats, print_json
 
+#: Default forward model: the ray tracer through its wide-box emulator (shipped with the package).
+DEFAULT_FORWARD = "tracer-emulator-wide"
 #: Default free parameters of least squares for each built-in forward model family.
 DEFAULT_FREE = ("shape", "scale", "sigma", "tau", "diffuse")
 
@@ -37,8 +39,8 @@ def parse_free(text, default) -> tuple[str, ...]:
 def add_model_arguments(p, *, starts: int = 8) -> None:
     from ..inverse._registry import FORWARDS
 
-    p.add_argument("--forward", default="analytic", choices=sorted(FORWARDS),
-                   help="forward model: " + "; ".join(f"{k}: {v[1]}" for k, v in FORWARDS.items()))
+    p.add_argument("--forward", default=DEFAULT_FORWARD, choices=sorted(FORWARDS),
+                   help=f"forward model (default {DEFAULT_FORWARD}): " + "; ".join(f"{k}: {v[1]}" for k, v in FORWARDS.items()))
     p.add_argument("--free", help=f"comma-separated free parameters (default {','.join(DEFAULT_FREE)})")
     p.add_argument("--fix", action="append", metavar="NAME=VALUE", help="hold a parameter at a value (repeatable)")
     p.add_argument("--starts", type=int, default=starts, help=f"least-squares starts (default {starts})")

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from .._cache import default_cache_dir
+from .._cache import default_cache_dir, shipped
 from .._io import atomic_savez
 from ..instrument._geometry import STANDARD_ASPECULAR
 from ._forward import ForwardModel, Restricted
@@ -279,8 +279,8 @@ def build_emulator(
     mean_id = "none" if mean is None else f"{mean.fingerprint()}|features={list(mean_features)}"
     fit_id = f"v{EMULATOR_FIT_VERSION}|{mean_id}"
     arrays = None
-    if path is not None and path.exists():
-        with np.load(path) as d:
+    if path is not None and shipped(path).exists():  # the cache, else a shipped emulator of the same key
+        with np.load(shipped(path)) as d:
             arrays = {k: np.array(d[k]) for k in d.files}
         if str(arrays.get("fit_id", "")) == fit_id:
             return _emulator_from_arrays(arrays, spec, angles, source, key, mean, mean_features)

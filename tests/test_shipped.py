@@ -1,0 +1,46 @@
+"""Results shipped with the package (paintjax/data/cache): they match the current physics.
+
+A shipped file is found by its content key, which changes with the physics that produced it (the
+tracer forward map's and BRDF tables' versions, the settings, the design). If the physics changes,
+the key changes, the shipped file is no longer found, and this test sees the tracer run: rebuild with
+`python experiments/calibrated_posterior.py --build-only` and copy the new files (docs/inference.md).
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from paintjax._cache import SHIPPED_DIR
+
+
+def test_shipped_emulator_matches_the_current_physics(tmp_path, monkeypatch):
+    from paintjax.inverse import _tracer_forward as tf
+    from paintjax.inverse import build_reading_model
+
+    monkeypatch.setenv("PAINTJAX_CACHE", str(tmp_path / "empty"))
+
+    def no_tracer(*args, **kwargs):
+        raise AssertionError("the tracer ran: no shipped emulator matches the current physics")
+
+    monkeypatch.setattr(tf.TracerLStar, "__call__", no_tracer)
+    monkeypatch.setattr(tf.TracerLStar, "trace_one", no_tracer)
+    em = tf.wide_tracer_emulator()
+    assert em.error_sd.shape == (5,) and float(em.error_sd.max()) < 5.0
+    build_reading_model(progress=False)  # the roughness reading model ships too
+    assert not (tmp_path / "empty").exists()  # nothing was built or written
+    assert sorted(p.name.split("-")[0] for p in SHIPPED_DIR.glob("*.npz")) == ["emulator", "roughness", "tracer"]
+
+
+def test_a_damaged_shipped_file_is_never_used(tmp_path, monkeypatch):
+    """The cache validates what it reads: a shipped file of the right name but damaged content is
+    ignored (with a warning) and the result is built into the cache folder; the shipped file stays."""
+    from paintjax import _cache
+
+    monkeypatch.setattr(_cache, "SHIPPED_DIR", tmp_path / "shipped")
+    (tmp_path / "shipped").mkdir()
+    name = _cache.cache_path("x", {"a": 1}, tmp_path / "cache").name
+    (tmp_path / "shipped" / name).write_bytes(b"garbage")
+    with pytest.warns(UserWarning):
+        arrays, hit = _cache.cached_arrays("x", {"a": 1}, lambda: {"v": [1.0]}, folder=tmp_path / "cache")
+    assert not hit and arrays["v"].tolist() == [1.0]
+    assert (tmp_path / "cache" / name).exists() and (tmp_path / "shipped" / name).read_bytes() == b"garbage"
