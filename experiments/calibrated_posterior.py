@@ -29,14 +29,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 from paintjax import atomic_savefig, atomic_write_json, enable_compilation_cache, load_sample, save_netcdf  # noqa: E402
-from paintjax.inverse import (  # noqa: E402
-    WIDE_TRACER_BOX,
-    MeasuredInputs,
-    build_reading_model,
-    posterior_predictive_check,
-    sample_posterior,
-    wide_tracer_emulator,
-)
+from paintjax.inverse import WIDE_TRACER_BOX, build_reading_model, panel_posteriors, wide_tracer_emulator  # noqa: E402
 
 OUT = Path("experiments/output/calibrated_posterior")
 BOX = WIDE_TRACER_BOX
@@ -103,23 +96,22 @@ def main(argv=None) -> int:
     OUT.mkdir(parents=True, exist_ok=True)
     for name in ("silver1", "silver2"):
         s = load_sample(name)
-        inputs = MeasuredInputs.for_sample(s, reading, tilt_platelets=TILT_PLATELETS)
+
+        def report(label, entry, name=name):
+            print(f"{name}: {label}\n{entry['posterior'].summary()}", flush=True)
+            print(f"  posterior-predictive p = {entry['check']['p_value']:.3g}; input shifts (z) "
+                  f"{ {k: round(v['z'], 2) for k, v in entry['input_shift'].items()} }", flush=True)
+
+        result = panel_posteriors(em, s, reading, tilt_platelets=TILT_PLATELETS, walkers=args.walkers, max_steps=args.max_steps,
+                                  min_ess=args.min_ess, seed=args.seed, on_run=report)
         runs = {}
-        for label, kw in (("L* alone", {}), ("L* and inputs", {"inputs": inputs}),
-                          ("L* and inputs, no discrepancy", {"inputs": inputs, "fixed": {"discrepancy": 0.0}})):
-            print(f"{name}: {label}", flush=True)
-            r = sample_posterior(em, s.L_star, walkers=args.walkers, max_steps=args.max_steps, min_ess=args.min_ess, seed=args.seed,
-                                 progress=False, **kw)
-            check = posterior_predictive_check(r, em, s.L_star, fixed=kw.get("fixed"), seed=args.seed)
-            tag = label.replace("*", "").replace(",", "").replace(" ", "_")
-            save_netcdf(r.idata, OUT / f"{name}_{tag}.nc")
+        for label, entry in ((k, v) for k, v in result.items() if k != "verdict"):
+            r = entry["posterior"]
+            save_netcdf(r.idata, OUT / f"{name}_{label.replace('*', '').replace(',', '').replace(' ', '_')}.nc")
             draws = {n: r.draws(n) for n in r.names}
-            runs[label] = {"summary": r.to_dict(), "check": check, "input_shift": inputs.shift_table(draws),
+            runs[label] = {"summary": r.to_dict(), "check": entry["check"], "input_shift": entry["input_shift"],
                            "draws": {n: np.asarray(v)[:: max(1, len(v) // 2000)] for n, v in draws.items()}}
-            print(r.summary(), flush=True)
-            print(f"  posterior-predictive p = {check['p_value']:.3g}; input shifts (z) "
-                  f"{ {k: round(v['z'], 2) for k, v in runs[label]['input_shift'].items()} }", flush=True)
-        out["panels"][name] = {"measured": s.L_star, "runs": runs}
+        out["panels"][name] = {"measured": s.L_star, "runs": runs, "verdict": result["verdict"]}
     out["seconds"] = time.perf_counter() - t0
     atomic_write_json(OUT / "summary.json", out)
     print(f"figure: {plot(out, OUT / 'calibrated_posterior.png')}; done in {out['seconds']:.0f} s", flush=True)

@@ -65,3 +65,24 @@ def test_posterior_predictive_check_separates_fit_from_misfit():
     a = posterior_predictive_check(two, MIRROR, L, seed=0)
     b = posterior_predictive_check(two, MIRROR, L, fixed={"diffuse": 0.0}, seed=0)
     assert a["p_value"] == b["p_value"]
+
+
+def test_panel_posteriors_give_a_verdict_from_the_strict_run():
+    """`panel_posteriors` through the shipped tracer emulator (short chains): every requested run, the
+    input-shift table, and a verdict that is the δ = 0 run's predictive p-value against DISAGREE_P."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from paintjax import load_sample
+    from paintjax.inverse import DISAGREE_P, build_reading_model, make_forward, panel_posteriors
+
+    forward = make_forward("tracer-emulator-wide", ("shape", "scale", "sigma", "tau"), {})
+    s = load_sample("silver2")
+    r = panel_posteriors(forward, s, build_reading_model(progress=False), runs=("L* and inputs, no discrepancy",), walkers=16,
+                         max_steps=600, min_ess=50.0, seed=1)
+    strict = r["L* and inputs, no discrepancy"]
+    assert "discrepancy" not in strict["posterior"].names
+    assert set(strict["input_shift"]) == {"sigma", "tau", "shape", "scale"}
+    assert r["verdict"] == ("disagree" if strict["check"]["p_value"] < DISAGREE_P else "agree")
+    with pytest.raises(ValueError, match="runs must be among"):
+        panel_posteriors(forward, s, None, runs=("L* only",))

@@ -24,6 +24,7 @@ from ._profilometer import (
     smoothed_gaussian_statistics,
 )
 from ._registry import make_forward, register_forward
+from ._verdict import DISAGREE_P, panel_posteriors
 from ._tilt_measurement import apparent_tilt_deg, fit_gamma, gamma_fit_moments, gamma_fit_sd, platelets_for_sd, tilt_fit_distribution
 from ._tracer_forward import (
     TRACER_BOX,
@@ -78,6 +79,8 @@ __all__ = [
     "check_chain",
     "save_netcdf",
     "make_forward",
+    "panel_posteriors",
+    "DISAGREE_P",
     "register_forward",
     "TRACER_BOX",
     "TRACER_PARAMETERS",
