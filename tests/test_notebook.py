@@ -16,5 +16,5 @@ def test_parameter_estimation_notebook_executes(tmp_path, monkeypatch):
     client = nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}})
     client.execute()
     text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
-    assert "quick mode" in text and "least squares" in text and "posterior:" in text
+    assert "quick mode" in text and "least squares" in text and "posterior:" in text and "verdict: the inputs and the L*" in text
     assert not any(o.get("output_type") == "error" for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
