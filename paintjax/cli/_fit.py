@@ -48,7 +48,8 @@ def add_model_arguments(p, *, starts: int = 8) -> None:
 
 
 #: API argument → flag, for error messages.
-API_FLAGS = {"backend_path": "--chain", "overwrite=True": "--overwrite"}
+API_FLAGS = {"backend_path": "--chain", "overwrite=True": "--overwrite", "data must": "--data must", "data file": "--data file",
+             "data columns": "--data columns", "data has": "--data has", "out must": "--out must"}
 
 
 def register(sub) -> None:
@@ -61,6 +62,11 @@ def register(sub) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--sample", help="reference sample whose measured L* to fit: silver1 or silver2 (default silver1)")
     g.add_argument("--measured", help="five L* values at 15,25,45,75,110°, e.g. 143.3,107.2,58.6,37.2,32.1")
+    g.add_argument("--data", help="CSV of many panels (id, L15, L25, L45, L75, L110, optional sd15 … sd110): one fit per panel "
+                                  "on Dask, results in <--out>/fit_panels.csv (a rerun skips panels already fitted)")
+    p.add_argument("--scheduler", help="address of an existing Dask scheduler for --data (default $DASK_SCHEDULER_ADDRESS, "
+                                       "else a local cluster)")
+    p.add_argument("--workers", type=int, default=2, help="worker processes of the local Dask cluster for --data (default 2)")
     add_model_arguments(p)
     p.add_argument("--posterior", action="store_true", help="also sample the posterior with emcee")
     p.add_argument("--walkers", type=int, default=32, help="emcee walkers (default 32)")
@@ -184,8 +190,44 @@ def _posterior_setup(args, forward, measured, lsq_free, fixed):
     return post_free, post_fixed, inputs
 
 
+def run_batch(args) -> int:
+    """`--data`: every panel of the CSV file, one Dask task each."""
+    import sys
+    from pathlib import Path
+
+    from ..inverse._panels import fit_panels
+
+    if args.posterior:
+        raise ValueError("--posterior with --data is not available: fit the panels, then sample chosen ones with --measured")
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    fixed = parse_fixed(args.fix)
+    if fixed:
+        raise ValueError("--fix with --data is not available: every panel fits the same free parameters")
+    free = parse_free(args.free, ("shape", "scale", "sigma", "tau"))
+    out = Path(args.out or "results/fit_panels") / "fit_panels.csv"
+
+    def report(row, n, total):
+        detail = f"χ² {row['chi2']:.3g}" if row["status"] == "ok" else row["error"]
+        print(f"[{n}/{total}] {row['id']}: {row['status']} ({detail})", file=sys.stderr, flush=True)
+
+    rows = fit_panels(args.data, out, forward=args.forward, free=free, n_starts=args.starts, seed=args.seed, scheduler=args.scheduler,
+                      workers=args.workers, on_result=None if args.no_progress else report)
+    if args.json:
+        print_json({"results": str(out), "panels": rows})
+    else:
+        ok = sum(r["status"] == "ok" for r in rows)
+        print(f"paintjax fit --data: {ok} of {len(rows)} rows fitted, {len(rows) - ok} with errors; results: {out}")
+        for r in rows:
+            if r["status"] != "ok":
+                print(f"  row {r.get('row', '?')} ({r['id'] or 'no id'}): {r['error']}")
+    return 0
+
+
 def run(args) -> int:
     enable_compilation_cache()
+    if args.data:
+        return run_batch(args)
     r = compute(args)
     if args.json:
         print_json({k: v for k, v in r.items() if not k.startswith("_")})

@@ -23,6 +23,7 @@ from ._profilometer import (
     profile_roughness,
     smoothed_gaussian_statistics,
 )
+from ._panels import fit_panel, fit_panels, read_panels, read_results
 from ._registry import make_forward, register_forward
 from ._verdict import DISAGREE_P, panel_posteriors
 from ._tilt_measurement import apparent_tilt_deg, fit_gamma, gamma_fit_moments, gamma_fit_sd, platelets_for_sd, tilt_fit_distribution
@@ -79,6 +80,10 @@ __all__ = [
     "check_chain",
     "save_netcdf",
     "make_forward",
+    "fit_panels",
+    "fit_panel",
+    "read_panels",
+    "read_results",
     "panel_posteriors",
     "DISAGREE_P",
     "register_forward",
