@@ -80,7 +80,7 @@ def _check(argv, option, tmp_path, capsys):
 
 @pytest.mark.parametrize("command,option,lo,hi,extra", RANGES, ids=[f"{c}{o}" for c, o, *_ in RANGES])
 def test_out_of_range_options_are_refused(command, option, lo, hi, extra, tmp_path_factory, capsys):
-    @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture], derandomize=True)
+    @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture], derandomize=True)
     @given(value=_invalid(option, lo, hi))
     def case(value):
         _check([command, *extra, f"{option}={value}"], option, tmp_path_factory.mktemp("f"), capsys)

@@ -79,7 +79,7 @@ def test_panel_posteriors_give_a_verdict_from_the_strict_run():
     forward = make_forward("tracer-emulator-wide", ("shape", "scale", "sigma", "tau"), {})
     s = load_sample("silver2")
     r = panel_posteriors(forward, s, build_reading_model(progress=False), runs=("L* and inputs, no discrepancy",), walkers=16,
-                         max_steps=600, min_ess=50.0, seed=1)
+                         max_steps=300, min_ess=0.0, seed=1)
     strict = r["L* and inputs, no discrepancy"]
     assert "discrepancy" not in strict["posterior"].names
     assert set(strict["input_shift"]) == {"sigma", "tau", "shape", "scale"}

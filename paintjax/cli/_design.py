@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 
 from .._cache import enable_compilation_cache
@@ -36,6 +37,8 @@ def compute(args):
     free = parse_free(args.free, [n for n in DEFAULT_FREE if n not in fixed])
     if args.starts < 1:
         raise ValueError(f"--starts must be >= 1, got {args.starts}")
+    if not (math.isfinite(args.tolerance) and args.tolerance > 0):  # before the forward model is built
+        raise ValueError(f"--tolerance must be a finite number > 0 [L*], got {args.tolerance!r}")
     forward = make_forward(args.forward, free, fixed, progress=not args.json)
     if args.free is None:  # defaults adapt to the model; explicit --free is taken as given
         free = tuple(n for n in free if n in forward.parameter_names)

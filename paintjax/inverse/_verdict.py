@@ -46,7 +46,8 @@ def panel_posteriors(
         reading: the roughness `ReadingModel` (`build_reading_model`), or None where σ, τ are not inputs.
         runs: labels of `RUNS` to sample, in order.
         definition, tilt_platelets: as in `MeasuredInputs.for_sample`.
-        walkers, max_steps, min_ess, seed: as in `sample_posterior`.
+        walkers, max_steps, min_ess, seed: as in `sample_posterior` (at least min(500, max_steps) steps,
+            convergence checked every min(250, max_steps)).
         on_run: called as `on_run(label, entry)` after each run (progress reporting).
 
     Returns:
@@ -62,7 +63,8 @@ def panel_posteriors(
     for label in runs:
         with_inputs, fixed = RUNS[label]
         r = sample_posterior(forward, sample.L_star, fixed=dict(fixed) or None, inputs=inputs if with_inputs else None, walkers=walkers,
-                             max_steps=max_steps, min_ess=min_ess, seed=seed, progress=False)
+                             max_steps=max_steps, min_steps=min(500, int(max_steps)), check_every=min(250, int(max_steps)), min_ess=min_ess,
+                             seed=seed, progress=False)
         check = posterior_predictive_check(r, forward, sample.L_star, fixed=dict(fixed) or None, seed=seed)
         out[label] = {"posterior": r, "check": check, "input_shift": inputs.shift_table({n: r.draws(n) for n in r.names})}
         if on_run is not None:
