@@ -112,6 +112,8 @@ def compute(args) -> dict:
         raise ValueError(f"--tilt-platelets must lie in [0, 1000000], got {args.tilt_platelets}")
     if args.overwrite and not args.chain:
         raise ValueError("--overwrite applies to --chain")
+    if args.posterior and (args.walkers < 2 or args.walkers % 2):  # the full check (≥ 2 × sampled parameters) follows
+        raise ValueError(f"--walkers must be even and >= 2 × the sampled parameters, got {args.walkers}")
     forward = make_forward(args.forward, free, fixed, progress=not args.no_progress and not args.json)
     # Defaults adapt to the model (a mirror model has no σ, τ); explicit --free is taken as given.
     lsq_free = free if args.free is not None else tuple(n for n in free if n in forward.parameter_names or n == "discrepancy")
