@@ -22,7 +22,7 @@ from typing import Callable
 
 import numpy as np
 
-from ._io import atomic_write_bytes
+from ._io import atomic_write_bytes, nearest_existing
 
 #: Bump when the stored layout or the meaning of cached arrays changes.
 CACHE_FORMAT_VERSION = 1
@@ -97,9 +97,7 @@ def cache_path(kind: str, inputs: dict, folder: str | os.PathLike | None = None)
         folder, name = default_cache_dir(), "the cache folder ($PAINTJAX_CACHE, default ~/.cache/paintjax)"
     else:
         folder, name = Path(folder), "cache_dir"
-    probe = folder
-    while not probe.exists() and probe != probe.parent:  # the nearest existing part must be a folder
-        probe = probe.parent
+    probe = nearest_existing(folder)
     if not probe.is_dir():
         raise ValueError(f"{name} must be a folder, but {str(probe)!r} is a file")
     return folder / f"{kind}-{cache_key(kind, inputs)[:24]}.npz"

@@ -40,6 +40,15 @@ def _umask() -> int:
     return mask
 
 
+def nearest_existing(path: str | os.PathLike) -> Path:
+    """`path` (absolute) if it exists, else its nearest existing ancestor: where creating it would
+    begin, and so what must be a writable folder for it to be created."""
+    probe = Path(path).absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    return probe
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike):
     """Yield a temporary path beside `path`; on success rename it onto `path`, on error delete it.

@@ -26,6 +26,7 @@ def test_shipped_emulator_matches_the_current_physics(tmp_path, monkeypatch):
     monkeypatch.setattr(tf.TracerLStar, "trace_one", no_tracer)
     em = tf.wide_tracer_emulator()
     assert em.error_sd.shape == (5,) and float(em.error_sd.max()) < 5.0
+    assert str(em.source).startswith("CallableForward(TracerLStar")  # the physics' identity, not the file it came from
     build_reading_model(progress=False)  # the roughness reading model ships too
     assert not (tmp_path / "empty").exists()  # nothing was built or written
     assert sorted(p.name.split("-")[0] for p in SHIPPED_DIR.glob("*.npz")) == ["emulator", "roughness", "tracer"]

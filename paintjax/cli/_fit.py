@@ -48,8 +48,8 @@ def add_model_arguments(p, *, starts: int = 8) -> None:
 
 
 #: API argument → flag, for error messages.
-API_FLAGS = {"backend_path": "--chain", "overwrite=True": "--overwrite", "data must": "--data must", "data file": "--data file",
-             "data columns": "--data columns", "data has": "--data has", "out must": "--out must"}
+API_FLAGS = {"backend_path": "--chain", "walkers must": "--walkers must", "overwrite=True": "--overwrite", "data must": "--data must", "data file": "--data file",
+             "data columns": "--data columns", "data has": "--data has"}
 
 
 def register(sub) -> None:
@@ -169,14 +169,13 @@ def compute(args) -> dict:
 def _posterior_setup(args, forward, measured, lsq_free, fixed):
     """(free, fixed, inputs) of the posterior, with the walkers and the --chain checked (nothing written)."""
     from .._samples import load_sample
-    from ..inverse._posterior import LogPosterior, check_chain
+    from ..inverse._posterior import LogPosterior, check_chain, check_walkers
 
     post_free = tuple(n for n in lsq_free if n != "discrepancy")
     post_fixed = {k: v for k, v in fixed.items() if k in forward.parameter_names or k == "discrepancy"}
     if "discrepancy" not in post_fixed:
         post_free = post_free + ("discrepancy",)
-    if args.walkers < 2 * len(post_free) or args.walkers % 2:
-        raise ValueError(f"--walkers must be even and >= 2 × {len(post_free)} sampled parameters = {2 * len(post_free)}, got {args.walkers}")
+    check_walkers(args.walkers, len(post_free))
     inputs = None
     if args.inputs != "none":
         from ..inverse._measured_inputs import MeasuredInputs

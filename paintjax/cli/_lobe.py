@@ -47,7 +47,7 @@ def compute(args) -> dict:
     """Solve and return the lobes and the energy ledger as plain arrays (the CLI's data)."""
     from .. import profile_averaged_lobes
     from ..wave._profiles import load_line_scan, process_line_scan, profile_statistics, profiles_from_heights
-    from ..wave._solver import default_spacing, solve_profiles
+    from ..wave._solver import check_energy, default_spacing, solve_profiles
 
     if not (0.01 <= args.step <= 10.0):
         raise ValueError(f"--step must lie in [0.01, 10] degrees, got {args.step!r}")
@@ -73,8 +73,6 @@ def compute(args) -> dict:
         )
         source = {"synthesised": args.correlation, "profiles": args.profiles, "seed": args.seed, "length_um": args.length,
                   "sigma_um": args.sigma, "tau_um": args.tau}
-    from ..wave._solver import check_energy
-
     check_energy(lobes.reflected, lobes.absorbed, np.asarray(lobes.incidence_deg), what="the wave solution",
                  fix="more points per wavelength (--ppw), a gentler slope, or a longer --length")
     return {"lobes": lobes, "source": source}

@@ -10,7 +10,6 @@ import argparse
 import importlib
 import os
 import sys
-from pathlib import Path
 
 #: Sub-command modules under paintjax.cli, in the order `--help` lists them.
 COMMANDS = ("demo", "microfacet", "array", "brdf", "lobe", "fit", "design", "simulate", "table1")
@@ -39,10 +38,9 @@ def _check_output_folder(out) -> None:
     naming --out); nothing is created here."""
     if not out:
         return
-    path = Path(out).absolute()
-    probe = path
-    while not probe.exists():  # the nearest existing folder must let us create the rest
-        probe = probe.parent
+    from .._io import nearest_existing
+
+    probe = nearest_existing(out)  # it must be a folder that lets us create the rest
     if not probe.is_dir():
         raise ValueError(f"--out must be a folder, but {str(probe)!r} is a file, got {out!r}")
     if not os.access(probe, os.W_OK | os.X_OK):

@@ -13,6 +13,7 @@ from ._emulator import Emulator, build_emulator, emulator_check, fit_emulator
 from ._fit import FitResult, fit_least_squares
 from ._forward import CallableForward, ForwardModel
 from ._measured_inputs import MeasuredInputs, posterior_predictive_check
+from ._panels import fit_panel, fit_panels, read_panels, read_results
 from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
 from ._posterior import LogPosterior, PosteriorResult, check_chain, corner_plot, sample_posterior, save_netcdf
 from ._profilometer import (
@@ -23,9 +24,7 @@ from ._profilometer import (
     profile_roughness,
     smoothed_gaussian_statistics,
 )
-from ._panels import fit_panel, fit_panels, read_panels, read_results
 from ._registry import make_forward, register_forward
-from ._verdict import DISAGREE_P, panel_posteriors
 from ._tilt_measurement import apparent_tilt_deg, fit_gamma, gamma_fit_moments, gamma_fit_sd, platelets_for_sd, tilt_fit_distribution
 from ._tracer_forward import (
     TRACER_BOX,
@@ -39,6 +38,7 @@ from ._tracer_forward import (
     tracer_info,
     wide_tracer_emulator,
 )
+from ._verdict import DISAGREE_P, panel_posteriors
 
 __all__ = [
     "WIDE_TRACER_BOX",

@@ -25,9 +25,8 @@ from jaxtyping import Array, ArrayLike, Float
 from .._cache import default_cache_dir, shipped
 from .._io import atomic_savez
 from ..instrument._geometry import STANDARD_ASPECULAR
-from ._forward import ForwardModel, Restricted
+from ._forward import ForwardModel, Restricted, _assemble
 from ._parameters import ParameterSpec
-from ._forward import _assemble
 
 EMULATOR_VERSION = 1  # meaning of the cached design evaluations (bump to re-run them)
 EMULATOR_FIT_VERSION = 4  # meaning of the fit on top of them (a change only re-fits, from the cached design)
@@ -279,8 +278,9 @@ def build_emulator(
     mean_id = "none" if mean is None else f"{mean.fingerprint()}|features={list(mean_features)}"
     fit_id = f"v{EMULATOR_FIT_VERSION}|{mean_id}"
     arrays = None
-    if path is not None and shipped(path).exists():  # the cache, else a shipped emulator of the same key
-        with np.load(shipped(path)) as d:
+    stored = None if path is None else shipped(path)  # the cache, else a shipped emulator of the same key
+    if stored is not None and stored.exists():
+        with np.load(stored) as d:
             arrays = {k: np.array(d[k]) for k in d.files}
         if str(arrays.get("fit_id", "")) == fit_id:
             return _emulator_from_arrays(arrays, spec, angles, source, key, mean, mean_features)

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._io import atomic_path, nearest_existing
+
 #: Aspecular angles a panel may give (45° illumination, the forward models' angles).
 PANEL_ANGLES = (15, 25, 45, 75, 110)
 #: Fewest angles of a panel.
@@ -146,17 +148,15 @@ def fit_panel(panel: dict, forward: str, free: Sequence[str], n_starts: int, see
 
 
 def _write_table(path: Path, rows: list[dict]) -> None:
-    """All rows (union of their columns) to CSV: a temporary file, then rename."""
+    """All rows (union of their columns) to CSV, written atomically (`atomic_path`)."""
     columns: list[str] = []
     for r in rows:
         columns += [k for k in r if k not in columns]
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=columns)
         w.writeheader()
         for r in rows:
             w.writerow({k: ("" if r.get(k) is None else r.get(k, "")) for k in columns})
-    os.replace(tmp, path)
 
 
 def read_results(path) -> list[dict]:
@@ -204,10 +204,8 @@ def fit_panels(
     out = Path(out)
     if out.exists() and out.is_dir():
         raise ValueError(f"out must be a CSV file, but {str(out)!r} is a folder")
-    probe = out.parent.absolute()
-    while not probe.exists():
-        probe = probe.parent
-    if not os.access(probe, os.W_OK | os.X_OK):
+    probe = nearest_existing(out.parent)
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
         raise ValueError(f"out {str(out)!r} cannot be written: {str(probe)!r} is not a writable folder")
     if int(workers) < 1:
         raise ValueError(f"workers must be >= 1, got {workers!r}")

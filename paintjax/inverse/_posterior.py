@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._io import atomic_path, atomic_savefig
+from .._io import atomic_path, atomic_savefig, nearest_existing
 from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, check_instrument_sd, check_measured, fit_least_squares
 from ._forward import ForwardModel
 
@@ -292,8 +292,7 @@ def sample_posterior(
     # Same chunk as least squares (one compiled forward) unless half an ensemble is larger.
     lp = LogPosterior(forward, measured, free, fixed, bounds, instrument_sd, chunk=max(CHUNK, walkers // 2), inputs=inputs)
     p = len(lp.names)
-    if walkers < 2 * p or walkers % 2:
-        raise ValueError(f"walkers must be even and >= 2 × {p} parameters = {2 * p}, got {walkers}")
+    check_walkers(walkers, p)
     if n_tau < 1 or min_steps < 1 or max_steps < min_steps or check_every < 1:
         raise ValueError(f"need n_tau >= 1, 1 <= min_steps <= max_steps, check_every >= 1; got {n_tau}, {min_steps}, {max_steps}, {check_every}")
     fn = lp if pool is None else _PooledLogPosterior(lp, pool, _pool_size(pool))
@@ -372,6 +371,12 @@ def _initial_ball(lp: LogPosterior, init, walkers: int, rng, seed: int) -> np.nd
     return U
 
 
+def check_walkers(walkers: int, parameters: int) -> None:
+    """An emcee ensemble needs an even number of walkers, at least 2 per sampled parameter (ValueError)."""
+    if walkers < 2 * parameters or walkers % 2:
+        raise ValueError(f"walkers must be even and >= 2 × {parameters} sampled parameters = {2 * parameters}, got {walkers}")
+
+
 def check_chain(backend_path, meta: str, *, resume: bool = True, overwrite: bool = False) -> bool:
     """Whether the chain file `backend_path` will be resumed; a stored chain is never silently replaced.
 
@@ -385,17 +390,14 @@ def check_chain(backend_path, meta: str, *, resume: bool = True, overwrite: bool
         True when the stored chain continues, False when a new one starts.
 
     Raises:
-        ValueError: the path is a folder or not a readable emcee chain, or it holds steps of a chain
-            that is not resumed (other data, model, parameters, priors or walkers, or resume=False)
-            and overwrite is False.
+        ValueError: the path is a folder, unwritable or not an emcee chain, or it holds steps of a
+            chain that is not resumed (another run, or resume=False) and overwrite is False.
     """
     import emcee
 
     path = Path(backend_path)
     if not path.exists():
-        probe = path.parent.absolute()
-        while not probe.exists():  # the nearest existing folder must let us create the rest
-            probe = probe.parent
+        probe = nearest_existing(path.parent)
         if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
             raise ValueError(f"backend_path {str(path)!r} cannot be written: {str(probe)!r} is not a writable folder")
         return False

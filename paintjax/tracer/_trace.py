@@ -402,12 +402,11 @@ def trace(
             while True:
                 state = run(sc, key, state, nl, single)
                 busy = bool(jnp.any(state[0][3]) | jnp.any(state[0][-1] != 0))
-                started = int(jnp.min(state[2]))
-                if not busy and started >= target:
+                if not busy and int(jnp.min(state[2])) >= target:
                     break
-                if heartbeat is not None and time.perf_counter() - beat >= HEARTBEAT_SECONDS:
+                if heartbeat is not None and time.perf_counter() - beat >= HEARTBEAT_SECONDS:  # the count read only then
                     beat = time.perf_counter()
-                    heartbeat(min(started, target) / target, beat - t0)
+                    heartbeat(min(int(jnp.min(state[2])), target) / target, beat - t0)
             item[2] = state
             parts.append(_summarise(np.asarray(state[1], dtype=float), m, opt.batches))
         est, se, per_batch, ledger, N = _combine(parts, m)
