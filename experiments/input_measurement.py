@@ -33,8 +33,8 @@ from paintjax import atomic_savefig, atomic_write_json, load_sample  # noqa: E40
 from paintjax.inverse import (  # noqa: E402
     SIGMA_DEFINITIONS,
     Profilometer,
-    gamma_fit_sd,
     build_reading_model,
+    gamma_fit_sd,
     platelets_for_sd,
     smoothed_gaussian_statistics,
     tilt_fit_distribution,

@@ -104,6 +104,10 @@ def test_readable_table(capsys):
         (["simulate", "--aspecular", "15,nan"], "--aspecular"),
         (["simulate", "--measured", "140,100"], "measured"),
         (["fit", "--measured", "143,107,inf,37,32"], "--measured"),
+        (["fit", "--data", "example", "--inputs", "rq"], "--inputs and --chain apply to one panel"),
+        (["fit", "--data", "example", "--posterior", "--walkers", "7"], "--walkers must be even"),
+        (["fit", "--no-figures"], "--no-figures applies to --data"),
+        (["fit", "--data", "/nonexistent/panels.csv"], "--data file not found"),
     ],
 )
 def test_bad_input_is_a_one_line_error(argv, needle, capsys):

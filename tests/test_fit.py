@@ -1,5 +1,7 @@
 """Least squares (Optimistix LM, multi-start), forward models and the emulator."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -247,3 +249,45 @@ def test_fit_verdict_says_whether_the_model_fits():
     assert "NOT fit" in bad.summary() and bad.to_dict()["verdict"] == bad.fit_verdict()
     zero = fit_least_squares(MIRROR, y, free=("shape", "scale", "diffuse"), weights=[1, 1, 1, 0, 0], n_starts=3)
     assert zero.dof == 0 and zero.p_value is None and "cannot test the model" in zero.fit_verdict()
+
+
+def test_known_inputs_are_gaussian_terms_of_the_objective():
+    """A known input (value ± sd) is one more standardised residual: a very tight one pins the parameter
+    at its value and its SD at the input's; a loose one leaves the data's optimum; each counts as data."""
+    y = _truth_curve()
+    free = ("shape", "scale", "diffuse")
+    plain = fit_least_squares(MIRROR, y, free=free, n_starts=4, seed=1)
+    tight = fit_least_squares(MIRROR, y, free=free, n_starts=4, seed=1, priors={"shape": (3.0, 1e-5)})
+    loose = fit_least_squares(MIRROR, y, free=free, n_starts=4, seed=1, priors={"shape": (3.0, 1e3)})
+    assert tight.values["shape"] == pytest.approx(3.0, abs=1e-4) and tight.stderr["shape"] <= 1.0001e-5 * np.sqrt(tight.scale2)
+    assert tight.dof == plain.dof + 1 and tight.chi2 > plain.chi2 + 1.0
+    r = tight.standardized_residuals
+    assert r.shape == (5 + 3,) and r[5 + 1] == 0 and r[5 + 2] == 0  # rows of the inputs without a prior are zero
+    assert r[5] == pytest.approx((tight.values["shape"] - 3.0) / 1e-5, rel=1e-6)
+    assert loose.values["shape"] == pytest.approx(TRUTH["shape"], rel=1e-4)
+    with pytest.raises(ValueError, match="known input 'sigma' is not a free parameter"):
+        fit_least_squares(MIRROR, y, free=free, priors={"sigma": (0.05, 0.01)})
+    with pytest.raises(ValueError, match="known input shape needs a finite value and an sd > 0"):
+        fit_least_squares(MIRROR, y, free=free, priors={"shape": (3.0, 0.0)})
+
+
+def test_emulator_design_on_a_dask_cluster_matches_the_serial_design(tmp_path):
+    """The design's batches as tasks on two worker processes give the same design values, checkpoint
+    and emulator as the serial loop (the callable travels to the workers by pickling)."""
+    distributed = pytest.importorskip("distributed")
+
+    def fn(x):
+        return np.stack([np.sin(x[:, 0]) * 50 + 60, x[:, 1] * 10, x[:, 0] + x[:, 1], np.cos(x[:, 1]) + 5, x[:, 0] ** 2], -1)
+
+    spec = make_spec(("shape", "scale"))
+    serial = build_emulator(fn, spec, source="toy-dask", n_train=16, n_test=8, batch=3, cache_dir=tmp_path / "serial")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        spread = build_emulator(fn, spec, source="toy-dask", n_train=16, n_test=8, batch=3, cache_dir=tmp_path / "dask", client=client)
+        assert sorted(client.run(os.getpid).values()) != [os.getpid()]  # real worker processes
+    (a,), (b,) = list((tmp_path / "serial").glob("*.npz")), list((tmp_path / "dask").glob("*.npz"))
+    with np.load(a) as da, np.load(b) as db:
+        np.testing.assert_array_equal(da["Y"], db["Y"])
+        np.testing.assert_array_equal(da["Yt"], db["Yt"])
+    x = np.tile([[2.0, 1.5]], (16, 1))
+    np.testing.assert_allclose(np.asarray(spread(x)), np.asarray(serial(x)), rtol=1e-12)

@@ -79,3 +79,59 @@ def test_batch_on_two_workers_matches_serial_survives_a_killed_worker_and_resume
     again = fit_panels(data, out, client=client, on_result=lambda *a: calls.append(a), **SETTINGS)
     assert calls == [] and [r["id"] for r in again] == [r["id"] for r in stored]
     assert read_results(out) == stored
+
+
+def test_known_inputs_posterior_netcdf_and_figures_of_a_batch(tmp_path, client):
+    """Known-input columns become Gaussian terms (the row's dof counts them); with a posterior each row
+    carries quantiles, R-hat, bulk ESS and the predictive p-value; the table goes to CSV and NetCDF
+    with the same numbers, and each panel gets a figure. A known input of a parameter that is not free
+    is an error for the whole file; a known input without its SD is a row error."""
+    xr = pytest.importorskip("xarray")
+    data = tmp_path / "panels.csv"
+    data.write_text("id,L15,L25,L45,L75,L110,sigma,sigma_sd,tau,tau_sd\n"
+                    "s1,143.3,107.2,58.6,37.2,32.1,0.051,0.01,0.64,0.11\n"
+                    "odd/id,129.0,106.1,67.7,43.7,36.2,,,,\n"
+                    "half,129.0,106.1,67.7,43.7,36.2,0.05,,,\n")
+    panels, bad = read_panels(data)
+    assert panels[0]["known"] == {"sigma": (0.051, 0.01), "tau": (0.64, 0.11)} and panels[1]["known"] == {}
+    assert "known input sigma needs both sigma and sigma_sd" in bad[0]["error"]
+    post = {"walkers": 12, "max_steps": 300, "min_ess": 100.0}
+    out = tmp_path / "res" / "fit_panels.csv"
+    rows = fit_panels(data, out, client=client, posterior=post, **SETTINGS)
+    by_id = {r["id"]: r for r in rows}
+    s1, odd = by_id["s1"], by_id["odd/id"]
+    assert s1["dof"] == 5 + 2 - 4 and odd["dof"] == 5 - 4
+    for r in (s1, odd):
+        assert r["sigma_q05"] < r["sigma_q50"] < r["sigma_q95"] and 0 < r["predictive_p"] <= 1
+        assert r["rhat_max"] > 0.9 and r["ess_bulk_min"] > 0 and r["steps"] == 300
+    assert np.isfinite(s1["sigma_known_z"]) and "sigma_known_z" not in odd
+    serial = fit_panel(panels[0], SETTINGS["forward"], SETTINGS["free"], SETTINGS["n_starts"], SETTINGS["seed"], post)
+    assert serial["sigma_q50"] == pytest.approx(s1["sigma_q50"], rel=1e-9)
+    ds = xr.open_dataset(out.with_suffix(".nc"), engine="h5netcdf")
+    assert list(ds["panel"].values) == ["s1", "odd/id", "half"]
+    np.testing.assert_allclose(ds["sigma_q50"].values[:2], [s1["sigma_q50"], odd["sigma_q50"]], rtol=1e-12)
+    assert ds["status"].values[2] == "error" and np.isnan(ds["sigma_q50"].values[2])
+    ds.close()
+    figures = sorted(p.name for p in (out.parent / "figures").glob("*.png"))
+    assert len(figures) == 2 and "s1.png" in figures and all("/" not in f for f in figures)
+    (tmp_path / "bad.csv").write_text("id,L15,L25,L45,pvc,pvc_sd\na,140,110,60,0.2,0.02\n")
+    with pytest.raises(ValueError, match=r"data columns \['pvc'\] are known inputs of parameters that are not free"):
+        fit_panels(tmp_path / "bad.csv", tmp_path / "bad_out.csv", client=client, **SETTINGS)
+
+
+def test_cli_batch_on_the_shipped_example(tmp_path, capsys):
+    """`paintjax fit --data example` fits the 3-panel file shipped with the package on a local cluster
+    and writes the CSV, the NetCDF and a figure per panel; a rerun does no work."""
+    pytest.importorskip("distributed")
+    from paintjax.cli._main import main
+
+    argv = ["fit", "--data", "example", "--out", str(tmp_path), "--starts", "2", "--json"]
+    assert main(argv) == 0
+    import json
+
+    report = json.loads(capsys.readouterr().out)
+    assert [r["id"] for r in report["panels"]] == ["silver1", "silver2", "trial-3"]
+    assert all(r["status"] == "ok" for r in report["panels"])
+    assert (tmp_path / "fit_panels.nc").stat().st_size > 0 and len(list((tmp_path / "figures").glob("*.png"))) == 3
+    assert report["panels"][1]["dof"] == 5 + 2 - 4  # silver2 carries its published σ, τ as known inputs
+    assert main(argv) == 0

@@ -11,7 +11,8 @@ from scipy.stats import binom
 
 from paintjax.inverse._analytic import AnalyticForward
 from paintjax.inverse._parameters import make_spec
-from paintjax.inverse._posterior import LogPosterior, corner_plot, sample_posterior, save_netcdf
+from paintjax.inverse._posterior import LogPosterior, sample_posterior
+from paintjax.inverse._posterior_output import corner_plot, save_netcdf
 
 MIRROR = AnalyticForward(rough=False)
 FREE = ("shape", "scale")
@@ -136,3 +137,50 @@ def test_posterior_bad_inputs():
         sample_posterior(MIRROR, y, free=FREE, fixed=FIXED, init={"shape": 500.0}, progress=False)
     with pytest.raises(ValueError, match=r"init names \['shap'\]"):
         sample_posterior(MIRROR, y, free=FREE, fixed=FIXED, init={"shap": 2.0}, progress=False)
+
+
+def test_angles_left_out_and_per_angle_sd():
+    """An angle left out (`angles`) does not enter the likelihood, whatever it holds (NaN included); a
+    per-angle SD equal everywhere is the scalar one; a larger SD at one angle weakens only that term."""
+    y = np.asarray(_data({"shape": 2.4, "scale": 2.1}, np.random.default_rng(3)), float)
+    U = np.random.default_rng(1).normal(0, 1, (16, 2))
+    free = FREE
+    base = LogPosterior(MIRROR, y, free=free, fixed=FIXED)(U)
+    np.testing.assert_allclose(LogPosterior(MIRROR, y, free=free, fixed=FIXED, instrument_sd=[0.3] * 5)(U), base, rtol=1e-12)
+    mask = np.array([True, True, False, True, True])
+    out1 = LogPosterior(MIRROR, np.where(mask, y, np.nan), free=free, fixed=FIXED, angles=mask)(U)
+    y2 = y.copy()
+    y2[2] += 40.0
+    out2 = LogPosterior(MIRROR, y2, free=free, fixed=FIXED, angles=mask)(U)
+    np.testing.assert_allclose(out1, out2, rtol=1e-12)
+    assert not np.allclose(out1, base)
+    with pytest.raises(ValueError, match="angles must be 5 booleans"):
+        LogPosterior(MIRROR, y, free=free, fixed=FIXED, angles=[True, False])
+    with pytest.raises(ValueError, match="instrument_sd must be a finite number > 0"):
+        LogPosterior(MIRROR, y, free=free, fixed=FIXED, instrument_sd=[0.3, 0.3, -1.0, 0.3, 0.3])
+
+
+def test_known_inputs_likelihood_is_the_gaussian_closed_form():
+    from paintjax.inverse._measured_inputs import KnownInputs
+
+    k = KnownInputs({"sigma": (0.05, 0.01), "tau": (0.6, 0.1)})
+    s, t = np.array([0.05, 0.07]), np.array([0.6, 0.4])
+    expect = (-0.5 * ((s - 0.05) / 0.01) ** 2 - np.log(np.sqrt(2 * np.pi) * 0.01)
+              - 0.5 * ((t - 0.6) / 0.1) ** 2 - np.log(np.sqrt(2 * np.pi) * 0.1))
+    np.testing.assert_allclose(np.asarray(k.log_likelihood({"sigma": s, "tau": t, "shape": s})), expect, rtol=1e-12)
+    shift = k.shift_table({"sigma": np.full(10, 0.07)})
+    assert list(shift) == ["sigma"] and shift["sigma"]["z"] == pytest.approx(-2.0)
+    with pytest.raises(ValueError, match="known input tau needs a finite value and an sd > 0"):
+        KnownInputs({"tau": (0.6, -0.1)})
+
+
+def test_posterior_piled_against_a_box_edge_is_flagged():
+    """Data far outside the prior box in shape: the posterior piles against the box's upper edge of
+    shape and the result says so (at_edge, summary); a well-inside posterior raises no flag."""
+    from paintjax.inverse._posterior import edges
+
+    spec = make_spec(("shape", "scale"), {"shape": (1.5, 3.0), "scale": (1.0, 3.0)})
+    rng = np.random.default_rng(0)
+    piled = np.column_stack([3.0 - 0.01 * rng.random(400), 1.0 + 2.0 * rng.random(400)])
+    inside = np.column_stack([2.0 + 0.1 * rng.standard_normal(400), 2.0 + 0.1 * rng.standard_normal(400)])
+    assert edges(spec, piled) == {"shape": "upper"} and edges(spec, inside) == {}

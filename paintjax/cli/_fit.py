@@ -62,11 +62,14 @@ def register(sub) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--sample", help="reference sample whose measured L* to fit: silver1 or silver2 (default silver1)")
     g.add_argument("--measured", help="five L* values at 15,25,45,75,110°, e.g. 143.3,107.2,58.6,37.2,32.1")
-    g.add_argument("--data", help="CSV of many panels (id, L15, L25, L45, L75, L110, optional sd15 … sd110): one fit per panel "
-                                  "on Dask, results in <--out>/fit_panels.csv (a rerun skips panels already fitted)")
+    g.add_argument("--data", help="CSV of many panels (id, L15, L25, L45, L75, L110, optional sd15 … sd110 and known inputs "
+                                  "shape, scale, sigma, tau with *_sd); 'example' reads the 3-panel file shipped with the package. "
+                                  "One fit (and with --posterior one posterior) per panel on Dask; results in <--out>/fit_panels.csv "
+                                  "and .nc, a figure per panel in <--out>/figures (a rerun skips panels already done)")
     p.add_argument("--scheduler", help="address of an existing Dask scheduler for --data (default $DASK_SCHEDULER_ADDRESS, "
                                        "else a local cluster)")
     p.add_argument("--workers", type=int, default=2, help="worker processes of the local Dask cluster for --data (default 2)")
+    p.add_argument("--no-figures", action="store_true", help="with --data: no figure per panel")
     add_model_arguments(p)
     p.add_argument("--posterior", action="store_true", help="also sample the posterior with emcee")
     p.add_argument("--walkers", type=int, default=32, help="emcee walkers (default 32)")
@@ -110,6 +113,8 @@ def compute(args) -> dict:
         raise ValueError("--inputs needs --sample: published inputs belong to a reference sample, not to --measured values")
     if not 0 <= args.tilt_platelets <= 1_000_000:
         raise ValueError(f"--tilt-platelets must lie in [0, 1000000], got {args.tilt_platelets}")
+    if args.no_figures:
+        raise ValueError("--no-figures applies to --data")
     if args.overwrite and not args.chain:
         raise ValueError("--overwrite applies to --chain")
     if args.posterior and (args.walkers < 2 or args.walkers % 2):  # the full check (≥ 2 × sampled parameters) follows
@@ -140,7 +145,8 @@ def compute(args) -> dict:
         "_fit": fr,
     }
     if args.posterior:
-        from ..inverse._posterior import corner_plot, sample_posterior, save_netcdf
+        from ..inverse._posterior import sample_posterior
+        from ..inverse._posterior_output import corner_plot, save_netcdf
 
         pr = sample_posterior(forward, measured, free=post_free, fixed=post_fixed, walkers=args.walkers, max_steps=args.max_steps,
                               min_steps=min(500, args.max_steps), check_every=min(250, args.max_steps), min_ess=args.min_ess, init=fr, seed=args.seed, backend_path=args.chain,
@@ -191,6 +197,13 @@ def _posterior_setup(args, forward, measured, lsq_free, fixed):
     return post_free, post_fixed, inputs
 
 
+def example_panels() -> str:
+    """Path of the 3-panel example CSV shipped with the package (`--data example`)."""
+    from importlib.resources import files
+
+    return str(files("paintjax") / "data" / "panels_example.csv")
+
+
 def run_batch(args) -> int:
     """`--data`: every panel of the CSV file, one Dask task each."""
     import sys
@@ -198,8 +211,11 @@ def run_batch(args) -> int:
 
     from ..inverse._panels import fit_panels
 
-    if args.posterior:
-        raise ValueError("--posterior with --data is not available: fit the panels, then sample chosen ones with --measured")
+    if args.inputs != "none" or args.chain:
+        raise ValueError("--inputs and --chain apply to one panel: with --data, give known inputs as columns (sigma, sigma_sd, …)")
+    if args.posterior and (args.walkers < 2 or args.walkers % 2 or args.max_steps < 1 or not args.min_ess > 0):
+        raise ValueError(f"--walkers must be even and >= 2 × the sampled parameters, --max-steps >= 1 and --min-ess > 0, got "
+                         f"{args.walkers}, {args.max_steps}, {args.min_ess}")
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     fixed = parse_fixed(args.fix)
@@ -207,18 +223,26 @@ def run_batch(args) -> int:
         raise ValueError("--fix with --data is not available: every panel fits the same free parameters")
     free = parse_free(args.free, ("shape", "scale", "sigma", "tau"))
     out = Path(args.out or "results/fit_panels") / "fit_panels.csv"
+    data = example_panels() if args.data == "example" else args.data
+    posterior = {"walkers": args.walkers, "max_steps": args.max_steps, "min_ess": args.min_ess} if args.posterior else None
+    t0 = time.perf_counter()
 
     def report(row, n, total):
         detail = f"χ² {row['chi2']:.3g}" if row["status"] == "ok" else row["error"]
-        print(f"[{n}/{total}] {row['id']}: {row['status']} ({detail})", file=sys.stderr, flush=True)
+        if row["status"] == "ok" and "predictive_p" in row:
+            detail += f", posterior-predictive p {row['predictive_p']:.2g}, R-hat ≤ {row['rhat_max']:.3f}"
+        eta = (time.perf_counter() - t0) / n * (total - n)
+        print(f"[{n}/{total}] {row['id']}: {row['status']} ({detail}); ETA {eta:.0f} s", file=sys.stderr, flush=True)
 
-    rows = fit_panels(args.data, out, forward=args.forward, free=free, n_starts=args.starts, seed=args.seed, scheduler=args.scheduler,
-                      workers=args.workers, on_result=None if args.no_progress else report)
+    rows = fit_panels(data, out, forward=args.forward, free=free, n_starts=args.starts, seed=args.seed, posterior=posterior,
+                      figures=not args.no_figures, scheduler=args.scheduler, workers=args.workers,
+                      on_result=None if args.no_progress else report)
     if args.json:
         print_json({"results": str(out), "panels": rows})
     else:
         ok = sum(r["status"] == "ok" for r in rows)
-        print(f"paintjax fit --data: {ok} of {len(rows)} rows fitted, {len(rows) - ok} with errors; results: {out}")
+        print(f"paintjax fit --data: {ok} of {len(rows)} rows {'sampled' if posterior else 'fitted'}, {len(rows) - ok} with errors; "
+              f"results: {out} and {out.with_suffix('.nc')}" + ("" if args.no_figures else f", figures in {out.parent / 'figures'}"))
         for r in rows:
             if r["status"] != "ok":
                 print(f"  row {r.get('row', '?')} ({r['id'] or 'no id'}): {r['error']}")

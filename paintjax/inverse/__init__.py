@@ -15,7 +15,8 @@ from ._forward import CallableForward, ForwardModel
 from ._measured_inputs import MeasuredInputs, posterior_predictive_check
 from ._panels import fit_panel, fit_panels, read_panels, read_results
 from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
-from ._posterior import LogPosterior, PosteriorResult, check_chain, corner_plot, sample_posterior, save_netcdf
+from ._posterior import LogPosterior, PosteriorResult, check_chain, sample_posterior
+from ._posterior_output import corner_plot, save_netcdf
 from ._profilometer import (
     SIGMA_DEFINITIONS,
     Profilometer,

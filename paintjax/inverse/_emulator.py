@@ -178,31 +178,44 @@ def emulator_key(source: str, spec: ParameterSpec, n_train: int, n_test: int, se
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
-def _evaluate_design(fn, Z: np.ndarray, spec: ParameterSpec, batch: int, checkpoint: Path | None, progress: bool) -> np.ndarray:
-    """Evaluate fn on the unit-cube design Z in batches, check-pointing after each batch."""
+def _evaluate_design(fn, Z: np.ndarray, spec: ParameterSpec, batch: int, checkpoint: Path | None, progress: bool, client=None) -> np.ndarray:
+    """Evaluate fn on the unit-cube design Z in batches, check-pointing after each batch; with a Dask
+    `client` the batches are tasks on its workers (results check-pointed as they arrive, in any order)."""
     n = Z.shape[0]
-    Y, done = None, 0
+    Y, have = None, np.zeros(n, bool)
     if checkpoint is not None and checkpoint.exists():
         with np.load(checkpoint) as d:
             if d["Z"].shape == Z.shape and np.allclose(d["Z"], Z):
-                Y, done = np.array(d["Y"]), int(d["done"])
+                Y = np.array(d["Y"])
+                have = np.array(d["have"]) if "have" in d.files else np.arange(n) < int(d["done"])
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=n, initial=done, desc="emulator design", leave=False)
-    while done < n:
-        stop = min(n, done + batch)
-        x = np.asarray(spec.from_unit(Z[done:stop]))
-        y = np.asarray(fn(x), dtype=float)
+        bar = tqdm(total=n, initial=int(have.sum()), desc="emulator design", leave=False)
+    todo = np.flatnonzero(~have)
+    batches = [todo[i:i + batch] for i in range(0, todo.size, batch)]
+
+    def store(rows, y):
+        nonlocal Y
+        y = np.asarray(y, dtype=float)
         if Y is None:
             Y = np.full((n, y.shape[1]), np.nan)
-        Y[done:stop] = y
-        done = stop
+        Y[rows], have[rows] = y, True
         if checkpoint is not None:
-            atomic_savez(checkpoint, Z=Z, Y=Y, done=done)
+            atomic_savez(checkpoint, Z=Z, Y=Y, have=have)
         if bar is not None:
-            bar.update(y.shape[0])
+            bar.update(len(rows))
+
+    if client is None:
+        for rows in batches:
+            store(rows, fn(np.asarray(spec.from_unit(Z[rows]))))
+    elif batches:
+        from distributed import as_completed
+
+        futures = {client.submit(fn, np.asarray(spec.from_unit(Z[rows])), pure=False): rows for rows in batches}
+        for fut in as_completed(futures):
+            store(futures[fut], fut.result())
     if bar is not None:
         bar.close()
     return Y
@@ -222,6 +235,7 @@ def build_emulator(
     progress: bool = False,
     mean: "Restricted | None" = None,
     mean_features: Sequence[int] = (),
+    client=None,
 ) -> Emulator:
     """Train (or load from cache) a GP emulator of `fn` over the box of `spec`.
 
@@ -248,6 +262,8 @@ def build_emulator(
             emulates fn − (c₀ + c₁·mean) per angle, with the mean's L* at `mean_features` (output
             columns) as extra inputs. Changing it re-fits from the cached design, no new fn calls.
         mean_features: output columns of `mean` used as GP inputs.
+        client: a Dask `distributed.Client`: the design's batches run as tasks on its workers (`fn`
+            must pickle; the tracer's `TracerLStar` becomes each worker's own shared instance).
 
     Returns:
         An `Emulator` (a `ForwardModel` over `spec.names`).
@@ -292,7 +308,7 @@ def build_emulator(
         Z = _sobol(n_train, len(spec), seed)
         Zt = _lhs(n_test, len(spec), seed + 1)
         ckpt = None if path is None else path.with_suffix(".partial.npz")
-        Yall = _evaluate_design(fn, np.concatenate([Z, Zt]), spec, batch, ckpt, progress)
+        Yall = _evaluate_design(fn, np.concatenate([Z, Zt]), spec, batch, ckpt, progress, client)
         if not np.all(np.isfinite(Yall)):
             raise ValueError("the forward callable returned non-finite L* on the design; narrow the parameter bounds")
         arrays = dict(Z=Z, Y=Yall[:n_train], Zt=Zt, Yt=Yall[n_train:], design_seconds=time.perf_counter() - t0)

@@ -17,6 +17,10 @@ RuntimeWarning, not the pseudo-inverse's zero. A `discrepancy` parameter is not 
 squares (it is a variance): when freed it is estimated afterwards over the weighted angles as
 δ̂² = max(0, Σ(L*_model − L*_meas)²/max(n − p, 1) − σ_instr² − mean e²), e the forward model's own
 error (an emulator's `error_sd`; 0 for the analytic model), as the posterior's likelihood adds them.
+
+Known inputs (`priors`, e.g. a measured σ with its uncertainty) add one residual each, (x − v)/u in
+physical units, after the angles: the fit is then the maximum a posteriori estimate under those
+Gaussian terms, they count as data in the degrees of freedom, and the Jacobian carries their rows.
 """
 
 from __future__ import annotations
@@ -51,7 +55,8 @@ class FitResult:
             order of `names` without it (scaling in the module docstring; inf where not identified).
         L_star_fit, L_star_measured: model and measured L* per angle.
         residuals: L_star_fit − L_star_measured (L* units).
-        standardized_residuals: the least-squares residual vector at the optimum.
+        standardized_residuals: the least-squares residual vector at the optimum (the angles, then one
+            per known input of `priors`, in the order of `names`).
         chi2, dof, scale2: χ², n − p and the covariance inflation s².
         success: whether the best start converged; status: Optimistix result message.
         n_starts, n_converged: starts tried and converged; starts: per-start (values, χ², status).
@@ -138,10 +143,11 @@ class FitResult:
         return f"the fit is consistent with the stated noise (χ² = {self.chi2:.3g} for {self.dof} dof, p = {p:.2g})"
 
 
-def check_measured(measured, m: int, name: str = "measured") -> np.ndarray:
+def check_measured(measured, m: int, name: str = "measured", angles=None) -> np.ndarray:
     """Concrete L* vector of length m with finite values in [−5, 250] (ValueError otherwise).
 
-    Slightly negative values are accepted: Gaussian noise on a dark angle produces them.
+    Slightly negative values are accepted: Gaussian noise on a dark angle produces them. With
+    `angles` (m booleans: which angles hold data) only those are checked; the others come back NaN.
     """
     try:
         y = np.asarray(measured, dtype=float).reshape(-1)
@@ -149,9 +155,20 @@ def check_measured(measured, m: int, name: str = "measured") -> np.ndarray:
         raise ValueError(f"{name} must be {m} numbers (L* per angle), got {measured!r}") from None
     if y.size != m:
         raise ValueError(f"{name} must have {m} values (one L* per angle), got {y.size}")
-    if np.any(~np.isfinite(y)) or np.any(y < -5) or np.any(y > 250):
+    have = check_angles(angles, m)
+    if np.any(~np.isfinite(y[have])) or np.any(y[have] < -5) or np.any(y[have] > 250):
         raise ValueError(f"{name} L* values must be finite and lie in [-5, 250], got {y.tolist()}")
-    return y
+    return np.where(have, y, np.nan)
+
+
+def check_angles(angles, m: int) -> np.ndarray:
+    """Which of the m angles hold data: None → all; else m booleans, at least one True (ValueError otherwise)."""
+    if angles is None:
+        return np.ones(m, bool)
+    a = np.asarray(angles)
+    if a.shape != (m,) or a.dtype != bool or not a.any():
+        raise ValueError(f"angles must be {m} booleans (which angles hold data), at least one True, got {angles!r}")
+    return a
 
 
 def _problem(forward: ForwardModel, free, fixed, bounds):
@@ -184,10 +201,39 @@ def _problem(forward: ForwardModel, free, fixed, bounds):
     return spec, sub, restricted
 
 
-def check_instrument_sd(instrument_sd) -> None:
-    """The instrument repeatability per angle: a finite number > 0 [L*]."""
-    if not (0 < float(instrument_sd) < float("inf")):
-        raise ValueError(f"instrument_sd must be a finite number > 0 [L*], got {instrument_sd!r}")
+def prior_arrays(names: Sequence[str], priors: Mapping[str, tuple[float, float]] | None) -> tuple[np.ndarray, np.ndarray]:
+    """(values, 1/sd) per name of the known inputs `priors` ({name: (value, sd)}); 0 weight where none."""
+    pv, pw = np.zeros(len(names)), np.zeros(len(names))
+    for name, v, sd in known_inputs(priors or {}):
+        if name not in names:
+            raise ValueError(f"known input {name!r} is not a free parameter of the fit (free: {', '.join(names)})")
+        i = list(names).index(name)
+        pv[i], pw[i] = v, 1.0 / sd
+    return pv, pw
+
+
+def known_inputs(values: Mapping[str, tuple[float, float]]) -> tuple[tuple[str, float, float], ...]:
+    """Known inputs {name: (value, sd)} as sorted (name, value, sd), each a finite value with an sd > 0 (ValueError)."""
+    items = []
+    for name, vs in dict(values).items():
+        try:
+            v, sd = (float(t) for t in vs)
+        except (TypeError, ValueError):
+            raise ValueError(f"known input {name} must be (value, sd), got {vs!r}") from None
+        if not (np.isfinite(v) and np.isfinite(sd) and sd > 0):
+            raise ValueError(f"known input {name} needs a finite value and an sd > 0, got value {v!r}, sd {sd!r}")
+        items.append((str(name), v, sd))
+    return tuple(sorted(items))
+
+
+def check_instrument_sd(instrument_sd, m: int | None = None) -> None:
+    """The instrument repeatability: a finite number > 0 [L*], or one per angle (m of them)."""
+    try:
+        a = np.asarray(instrument_sd, dtype=float)
+    except (TypeError, ValueError):
+        a = np.asarray(np.nan)
+    if a.ndim > 1 or (a.ndim == 1 and m is not None and a.shape != (m,)) or not np.all((a > 0) & np.isfinite(a)) or a.size == 0:
+        raise ValueError(f"instrument_sd must be a finite number > 0 [L*], or one per angle, got {instrument_sd!r}")
 
 
 def _unidentified(Jx: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
@@ -218,6 +264,7 @@ def fit_least_squares(
     rtol: float = 1e-6,
     atol: float = 1e-6,
     jacobian: str = "fd",
+    priors: Mapping[str, tuple[float, float]] | None = None,
 ) -> FitResult:
     """Levenberg–Marquardt fit of the free parameters to measured L*, multi-start.
 
@@ -228,7 +275,7 @@ def fit_least_squares(
             ``discrepancy`` (moment estimate, see module docstring).
         fixed: values of other forward inputs (defaults: registered defaults).
         bounds: `{name: (lower, upper)}` overrides of the registered bounds.
-        instrument_sd: instrument repeatability per angle [L*], > 0.
+        instrument_sd: instrument repeatability [L*], > 0: one number, or one per angle.
         weights: optional non-negative weight per angle multiplying the standardised residual.
         n_starts: number of starts (≥ 1).
         x0: optional extra start (physical values of the free parameters).
@@ -238,6 +285,8 @@ def fit_least_squares(
             stopped at the step limit away from the box edge (its status says so).
         jacobian: ``"fd"`` (central differences of the compiled batched forward; default, no
             extra compilation, works for non-differentiable forwards) or ``"ad"`` (jacfwd).
+        priors: known inputs `{name: (value, sd)}` of free parameters (physical units, sd > 0), each
+            a Gaussian term of the objective (module docstring).
 
     Returns:
         A `FitResult`.
@@ -245,16 +294,17 @@ def fit_least_squares(
     t0 = time.perf_counter()
     m = len(forward.aspecular_deg)
     y = check_measured(measured, m)
-    check_instrument_sd(instrument_sd)
+    check_instrument_sd(instrument_sd, m)
     if int(n_starts) < 1:
         raise ValueError(f"n_starts must be >= 1, got {n_starts!r}")
     w = np.ones(m) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
     if w.shape != (m,) or np.any(~np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
         raise ValueError(f"weights must be {m} finite non-negative numbers, not all zero, got {weights!r}")
     spec, sub, restricted = _problem(forward, free, fixed, bounds)
-    s = np.sqrt(float(instrument_sd) ** 2 + np.asarray(forward.error_sd) ** 2)
-
-    args = (jnp.asarray(y), jnp.asarray(w), jnp.asarray(s))
+    s = np.sqrt(np.asarray(instrument_sd, dtype=float) ** 2 + np.asarray(forward.error_sd) ** 2)
+    pv, pw = prior_arrays(sub.names, priors)
+    args = (jnp.asarray(y), jnp.asarray(w), jnp.asarray(s), jnp.asarray(sub._a), jnp.asarray(sub._b), jnp.asarray(sub._is_log),
+            jnp.asarray(pv), jnp.asarray(pw))
 
     from scipy.stats import qmc
 
@@ -268,9 +318,9 @@ def fit_least_squares(
         eps = 1e-9 * (sub.upper - sub.lower)
         u0 = np.concatenate([np.asarray(sub.to_unconstrained(np.clip(xs, sub.lower + eps, sub.upper - eps)))[None], u0])
     solve, residual, jac = _compiled(len(sub), m, max_steps, rtol, atol)
-    fwd, jac_np = _host_functions(restricted, sub, jacobian)
+    fwd, value_and_jac = _host_functions(restricted, sub, jacobian)
     with _ACTIVE_LOCK:
-        _ACTIVE["f"], _ACTIVE["j"] = fwd, jac_np
+        _ACTIVE["f"], _ACTIVE["fj"] = fwd, value_and_jac
         u_all, codes = solve(jnp.asarray(u0), args)
         u_all, codes = np.array(u_all), np.array(codes).reshape(-1)
         r_all = np.array(jax.vmap(residual, in_axes=(0, None))(jnp.asarray(u_all), args))
@@ -313,15 +363,15 @@ def fit_least_squares(
     x_best = np.asarray(sub.from_unconstrained(u_best))
     # Jacobian in physical units: ∂r/∂x = ∂r/∂u · (∂x/∂u)^-1 (the bijection is elementwise).
     if jacobian == "ad":
-        Ju = Ju_ad[best]
+        Ju = Ju_ad[best][:m]
     else:  # central differences (step 1e-5 in u)
         hs = 1e-5
         E = np.eye(len(sub)) * hs
         Y = fwd(np.concatenate([u_jac[None] + E, u_jac[None] - E]))
         Ju = ((Y[: len(sub)] - Y[len(sub):]) / (2 * hs)).T * (w / s)[:, None]
     dxdu = np.diag(np.asarray(jax.jacfwd(sub.from_unconstrained)(jnp.asarray(u_jac))))
-    Jx = Ju / dxdu[None, :]
-    n_eff = int(np.sum(w > 0))
+    Jx = np.concatenate([Ju / dxdu[None, :], np.diag(pw)[pw > 0]])  # the known inputs' rows: ∂((x − v)/u)/∂x
+    n_eff = int(np.sum(w > 0) + np.sum(pw > 0))
     dof = n_eff - len(sub)
     chi2 = float(chi2_all[best])
     scale2 = max(1.0, chi2 / dof) if dof > 0 else 1.0
@@ -342,7 +392,8 @@ def fit_least_squares(
     if "discrepancy" in spec.names:
         used = w > 0  # unweighted residuals: δ is a variance in L*², whatever the weights
         e2 = np.broadcast_to(np.asarray(forward.error_sd, dtype=float) ** 2, res.shape)
-        disc = float(np.sqrt(max(0.0, np.sum(res[used] ** 2) / max(dof, 1) - float(instrument_sd) ** 2 - float(np.mean(e2[used])))))
+        i2 = np.broadcast_to(np.asarray(instrument_sd, dtype=float) ** 2, res.shape)
+        disc = float(np.sqrt(max(0.0, np.sum(res[used] ** 2) / max(dof, 1) - float(np.mean(i2[used])) - float(np.mean(e2[used])))))
         values["discrepancy"] = disc
         stderr["discrepancy"] = float("nan")
     return FitResult(
@@ -392,7 +443,7 @@ _ACTIVE_LOCK = threading.RLock()
 
 
 def _host_functions(restricted: Restricted, sub: ParameterSpec, jacobian: str):
-    """NumPy (value, Jacobian) functions of u for one problem.
+    """NumPy functions of u for one problem: the value, and the value with the Jacobian.
 
     Values come from `batched_forward`; the Jacobian either by forward-mode AD (``"ad"``,
     compiled separately) or by one-sided differences in u with step 1e-6 (``"fd"``: no extra
@@ -405,19 +456,19 @@ def _host_functions(restricted: Restricted, sub: ParameterSpec, jacobian: str):
     if jacobian == "ad":
         j_batch = jax.jit(jax.vmap(jax.jacfwd(lambda u: restricted.evaluate(sub.from_unconstrained(u)[None])[0])))
 
-        def jac_np(U):
-            return np.asarray(j_batch(U))
+        def value_and_jac(U):
+            return fwd(U), np.asarray(j_batch(U))
     elif jacobian == "fd":
         h = 1e-6
 
-        def jac_np(U):
+        def value_and_jac(U):
             E = np.eye(k) * h
             P = np.concatenate([U[:, None, :], U[:, None, :] + E[None]], axis=1).reshape(-1, k)
             Y = fwd(P).reshape(U.shape[0], k + 1, m)
-            return np.transpose((Y[:, 1:] - Y[:, :1]) / h, (0, 2, 1))
+            return Y[:, 0], np.transpose((Y[:, 1:] - Y[:, :1]) / h, (0, 2, 1))
     else:
         raise ValueError(f"jacobian must be 'ad' or 'fd', got {jacobian!r}")
-    return fwd, jac_np
+    return fwd, value_and_jac
 
 
 def _callback_map(k: int, m: int):
@@ -425,7 +476,10 @@ def _callback_map(k: int, m: int):
     functions through `jax.pure_callback`.
 
     Optimistix then traces only this small wrapper, and one compiled solver per (k, m, settings)
-    serves every problem in the process (the problem is looked up at call time, under a lock).
+    serves every problem in the process (the problem is looked up at call time, under a lock). The
+    JVP rule takes the value and the Jacobian from one callback: two callbacks that XLA runs at once,
+    each running the forward model's own compiled code, can take every thread of the CPU pool and
+    wait on each other.
     """
     dtype = jnp.result_type(float)
 
@@ -433,9 +487,10 @@ def _callback_map(k: int, m: int):
         u = np.asarray(u)
         return _ACTIVE["f"](u.reshape(-1, k)).astype(dtype).reshape(u.shape[:-1] + (m,))
 
-    def host_j(u):
+    def host_fj(u):
         u = np.asarray(u)
-        return _ACTIVE["j"](u.reshape(-1, k)).astype(dtype).reshape(u.shape[:-1] + (m, k))
+        y, J = _ACTIVE["fj"](u.reshape(-1, k))
+        return y.astype(dtype).reshape(u.shape[:-1] + (m,)), J.astype(dtype).reshape(u.shape[:-1] + (m, k))
 
     @jax.custom_jvp
     def F(u):
@@ -444,8 +499,9 @@ def _callback_map(k: int, m: int):
     @F.defjvp
     def F_jvp(primals, tangents):
         (u,), (t,) = primals, tangents
-        J = jax.pure_callback(host_j, jax.ShapeDtypeStruct(u.shape[:-1] + (m, k), dtype), u, vmap_method="expand_dims")
-        return F(u), J @ t
+        y, J = jax.pure_callback(host_fj, (jax.ShapeDtypeStruct(u.shape[:-1] + (m,), dtype),
+                                           jax.ShapeDtypeStruct(u.shape[:-1] + (m, k), dtype)), u, vmap_method="expand_dims")
+        return y, J @ t
 
     return F
 
@@ -505,8 +561,10 @@ def _compiled(k: int, m: int, max_steps: int, rtol: float, atol: float):
     F = _callback_map(k, m)
 
     def residual(u, args):
-        ys, ws, ss = args
-        return ws * (F(u) - ys) / ss
+        ys, ws, ss, a, b, is_log, pv, pw = args
+        t = a + (b - a) * jax.nn.sigmoid(u)  # the physical values x(u) (`ParameterSpec.from_unconstrained`)
+        x = jnp.where(is_log, jnp.exp(jnp.where(is_log, t, 0.0)), t)
+        return jnp.concatenate([ws * (F(u) - ys) / ss, pw * (x - pv)])
 
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)
 

@@ -5,7 +5,9 @@ true (σ, τ, shape, scale): the roughness through the virtual profilometer's `R
 published procedure reads on a true surface), the tilt law as a maximum-likelihood gamma fit to a
 stated count of measured platelets (`gamma_fit_sd`: Fisher covariance at the true law). Added to the
 L* likelihood in `sample_posterior(..., inputs=...)`, the posterior weighs what the inputs and the
-L* each say. `posterior_predictive_check` asks whether the L* are what the posterior expects.
+L* each say. `KnownInputs` is the plain alternative for inputs reported as value ± SD of the true
+parameter (a batch file's known-input columns). `posterior_predictive_check` asks whether the L* are
+what the posterior expects.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import equinox as eqx
 import numpy as np
 
-from ._fit import evaluate_in_chunks
+from ._fit import evaluate_in_chunks, known_inputs
 from ._profilometer import SIGMA_DEFINITIONS, ReadingModel, normal2_log_density
 from ._tilt_measurement import gamma_fit_moments
 
@@ -93,8 +95,39 @@ class MeasuredInputs(eqx.Module):
         return out
 
 
-def posterior_predictive_check(result, forward, measured, *, fixed=None, instrument_sd: float = 0.3, max_draws: int = 400,
-                               seed: int = 0) -> dict:
+class KnownInputs(eqx.Module):
+    """Inputs known as value ± SD of the true parameter (Gaussian likelihood; jittable), e.g. a panel's
+    measured σ with its uncertainty.
+
+    Arguments:
+        values: {name: (value, sd)} in physical units, sd > 0.
+    """
+
+    items: tuple = eqx.field(static=True)
+
+    def __init__(self, values):
+        self.items = known_inputs(values)
+
+    def fingerprint(self) -> str:
+        """Identity for chain metadata."""
+        return repr(self.items)
+
+    def log_likelihood(self, params: dict):
+        """Σ log N(value | θ, sd²) over the known inputs present in `params` (arrays)."""
+        total = 0.0
+        for name, v, sd in self.items:
+            if name in params:
+                total = total - 0.5 * ((params[name] - v) / sd) ** 2 - float(np.log(np.sqrt(2 * np.pi) * sd))
+        return total
+
+    def shift_table(self, draws: dict) -> dict:
+        """Each known input against the posterior: z = (value − posterior median) / sd."""
+        return {n: {"published": v, "expected_reading": float(np.median(draws[n])), "true_median": float(np.median(draws[n])),
+                    "z": float((v - np.median(draws[n])) / sd)} for n, v, sd in self.items if n in draws}
+
+
+def posterior_predictive_check(result, forward, measured, *, fixed=None, instrument_sd=0.3, max_draws: int = 400,
+                               seed: int = 0, angles=None) -> dict:
     """Posterior-predictive check of the L*: are the measured values what the posterior expects?
 
     For posterior draws θ_i (with their discrepancy δ_i, or the fixed one), the χ² of the measured L*
@@ -104,7 +137,8 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
     produce data like the measured ones.
 
     Forward inputs that were neither sampled nor in `fixed` take their registered defaults, as in the
-    posterior.
+    posterior. `instrument_sd` may be one per angle; `angles` (m booleans) leaves the others out (m
+    is then their count).
 
     Returns:
         dict with "p_value", "chi2_median" (of T_i), the predictive band "L_star_q05", "L_star_q50",
@@ -122,11 +156,12 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
     # inputs neither sampled nor fixed take their registered defaults, as in the posterior
     restricted = forward.restrict(free, {k: v for k, v in fixed.items() if k in forward.parameter_names})
     L = evaluate_in_chunks(forward, np.asarray(restricted.full(S[:, [names.index(n) for n in free]])))
-    y = np.asarray(measured, float)
+    have = np.ones(L.shape[1], bool) if angles is None else np.asarray(angles, bool)
+    y = np.where(have, np.asarray(measured, float), 0.0)
     delta = S[:, names.index("discrepancy")] if "discrepancy" in names else np.full(len(S), float(fixed.get("discrepancy", 0.0)))
-    var = float(instrument_sd) ** 2 + np.asarray(forward.error_sd, float) ** 2 + delta[:, None] ** 2
-    T = np.sum((y - L) ** 2 / var, axis=1)
+    var = np.asarray(instrument_sd, float) ** 2 + np.asarray(forward.error_sd, float) ** 2 + delta[:, None] ** 2
+    T = np.sum(np.where(have, (y - L) ** 2 / var, 0.0), axis=1)
     rep = L + rng.standard_normal(L.shape) * np.sqrt(var)
-    return {"p_value": float(np.mean(chi2_dist.sf(T, y.size))), "chi2_median": float(np.median(T)),
+    return {"p_value": float(np.mean(chi2_dist.sf(T, int(have.sum())))), "chi2_median": float(np.median(T)),
             "L_star_q05": np.quantile(rep, 0.05, axis=0), "L_star_q50": np.quantile(rep, 0.5, axis=0),
             "L_star_q95": np.quantile(rep, 0.95, axis=0), "draws": int(len(S))}

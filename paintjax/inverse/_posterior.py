@@ -34,8 +34,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._io import atomic_path, atomic_savefig, nearest_existing
-from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, check_instrument_sd, check_measured, fit_least_squares
+from .._io import nearest_existing
+from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, check_angles, check_instrument_sd, check_measured, fit_least_squares
 from ._forward import ForwardModel
 
 
@@ -54,6 +54,9 @@ class PosteriorResult:
         acceptance: mean acceptance fraction; seconds: wall time of this call.
         L_star_mean, L_star_q05, L_star_q95: posterior predictive band of the model curve.
         idata: arviz.InferenceData; backend_path: HDF5 file (or None).
+        at_edge: {name: "lower" or "upper"} for parameters whose posterior piles against that edge of
+            the prior box (more than `EDGE_MASS` of the draws in the outer `EDGE_BAND` of the box, where a
+            flat likelihood puts `EDGE_BAND`): the box, not the data, bounds them there.
     """
 
     names: tuple[str, ...]
@@ -78,6 +81,7 @@ class PosteriorResult:
     measured: np.ndarray
     idata: object = None
     backend_path: str | None = None
+    at_edge: dict = dataclasses.field(default_factory=dict)
 
     def interval(self, name: str, level: float = 0.9) -> tuple[float, float]:
         """Equal-tailed credible interval of a parameter (or ``mean_tilt``)."""
@@ -110,6 +114,7 @@ class PosteriorResult:
             "L_star_q05": self.L_star_q05.tolist(),
             "L_star_q95": self.L_star_q95.tolist(),
             "seconds": self.seconds,
+            "at_edge": dict(self.at_edge),
         }
 
     def summary(self) -> str:
@@ -117,7 +122,28 @@ class PosteriorResult:
                  f"n_eff ≈ {self.n_eff:.0f}; {'converged' if self.converged else 'NOT converged'}; acceptance {self.acceptance:.2f}"]
         for n in self.mean:
             lines.append(f"  {n:>12}: mean {self.mean[n]:.4g}, 90% [{self.q05[n]:.4g}, {self.q95[n]:.4g}], τ_int {self.tau_int.get(n, float('nan')):.0f}")
+        for n, side in self.at_edge.items():
+            lines.append(f"  WARNING: the posterior of {n} piles against the {side} edge of its prior box: the box, not the data, "
+                         "bounds it there (widen the box if the physics allows)")
         return "\n".join(lines)
+
+
+#: A parameter piles against an edge when more than EDGE_MASS of its draws lie in the outer EDGE_BAND
+#: of its box (in the prior's unit coordinate; a flat likelihood puts EDGE_BAND there).
+EDGE_BAND, EDGE_MASS = 0.02, 0.10
+
+
+def edges(spec, samples: np.ndarray) -> dict:
+    """{name: "lower" | "upper"} of the parameters (not ``discrepancy``) whose draws pile against an edge of the box."""
+    z = np.asarray(spec.to_unit(np.asarray(samples)))
+    out = {}
+    for i, name in enumerate(spec.names):
+        if name == "discrepancy":
+            continue
+        for side, frac in (("lower", np.mean(z[:, i] < EDGE_BAND)), ("upper", np.mean(z[:, i] > 1 - EDGE_BAND))):
+            if frac > EDGE_MASS:
+                out[name] = side
+    return out
 
 
 class LogPosterior:
@@ -127,17 +153,21 @@ class LogPosterior:
     over a pool.
 
     Arguments:
-        forward, measured, free, fixed, bounds, instrument_sd: as in `sample_posterior`.
+        forward, measured, free, fixed, bounds, instrument_sd, inputs, angles: as in `sample_posterior`.
     """
 
     def __init__(self, forward: ForwardModel, measured, free, fixed=None, bounds=None, instrument_sd: float = INSTRUMENT_SD, chunk: int = 16,
-                 inputs=None):
+                 inputs=None, angles=None):
         self.forward = forward
         self.inputs = inputs
         self.chunk = int(chunk)
-        self.measured = check_measured(measured, len(forward.aspecular_deg))
-        check_instrument_sd(instrument_sd)
-        self.instrument_sd = float(instrument_sd)
+        m = len(forward.aspecular_deg)
+        self.angles = check_angles(angles, m)
+        self.measured = check_measured(measured, m, angles=self.angles)
+        check_instrument_sd(instrument_sd, m)
+        sd = np.asarray(instrument_sd, dtype=float)
+        self.instrument_sd = float(sd) if sd.ndim == 0 else sd.tolist()
+        self.sd = np.broadcast_to(sd, (m,)).copy()
         self.fixed = dict(fixed or {})
         self.bounds = dict(bounds or {})
         self.spec, self.sub, self.restricted = _problem(forward, free, self.fixed, self.bounds)
@@ -161,8 +191,8 @@ class LogPosterior:
         cols = np.array([spec.index(n) for n in sub.names])
         d_col = spec.index("discrepancy") if "discrepancy" in spec.names else -1
         d_fixed = float(self.fixed.get("discrepancy", 0.0))
-        y = jnp.asarray(self.measured)
-        var0 = jnp.asarray(self.instrument_sd**2 + np.asarray(self.forward.error_sd) ** 2)
+        y, have = jnp.asarray(np.where(self.angles, self.measured, 0.0)), jnp.asarray(self.angles)
+        var0 = jnp.asarray(self.sd**2 + np.asarray(self.forward.error_sd) ** 2)
         inputs, fixed_inputs = self.inputs, dict(self.restricted.fixed)
 
         @jax.jit
@@ -170,7 +200,7 @@ class LogPosterior:
             x = spec.from_unconstrained(U)
             delta = x[:, d_col] if d_col >= 0 else jnp.full(U.shape[0], d_fixed)
             var = var0[None, :] + delta[:, None] ** 2
-            ll = -0.5 * jnp.sum((L - y) ** 2 / var + jnp.log(2.0 * jnp.pi * var), axis=-1)
+            ll = -0.5 * jnp.sum(jnp.where(have, (L - y) ** 2 / var + jnp.log(2.0 * jnp.pi * var), 0.0), axis=-1)
             lp = ll + spec.log_prior_unconstrained(U)
             if inputs is not None:  # the published inputs as data (`MeasuredInputs`)
                 params = {n: jnp.full(U.shape[0], float(v)) for n, v in fixed_inputs.items()}
@@ -192,7 +222,8 @@ class LogPosterior:
     def description(self, walkers: int) -> str:
         """What a stored chain must have been sampled for to be resumed: data, model, parameters,
         priors, inputs and walkers (JSON; `check_chain`)."""
-        return json.dumps({"names": self.names, "measured": self.measured.tolist(), "forward": self.forward.fingerprint(),
+        angles = {} if self.angles.all() else {"angles": self.angles.tolist()}  # (absent for all angles: older chains resume)
+        return json.dumps(angles | {"names": self.names, "measured": self.measured.tolist(), "forward": self.forward.fingerprint(),
                            "fixed": self.restricted.fixed, "fixed_discrepancy": self.fixed.get("discrepancy"),
                            "bounds": self.spec.fingerprint(), "instrument_sd": self.instrument_sd, "walkers": int(walkers),
                            "inputs": None if self.inputs is None else self.inputs.fingerprint()}, sort_keys=True)
@@ -248,6 +279,7 @@ def sample_posterior(
     pool=None,
     inference_data: bool = True,
     inputs=None,
+    angles=None,
 ) -> PosteriorResult:
     """Sample the posterior of the free parameters with emcee (vectorised, resumable).
 
@@ -258,7 +290,9 @@ def sample_posterior(
             ``discrepancy``).
         fixed: values of the other forward inputs; ``discrepancy`` may be fixed too (e.g. 0).
         bounds: `{name: (lower, upper)}` overrides of the registered bounds.
-        instrument_sd: instrument repeatability [L*].
+        instrument_sd: instrument repeatability [L*]: one number, or one per angle.
+        angles: which angles hold data (m booleans; default all): the others are left out of the
+            likelihood and may be NaN in `measured`.
         walkers: ensemble size (≥ 2·p, even).
         max_steps, min_steps, check_every: chain-length limits and convergence-check period.
         n_tau: required chain length in integrated autocorrelation times (≥ 50 by default).
@@ -290,7 +324,7 @@ def sample_posterior(
     from ._fit import CHUNK
 
     # Same chunk as least squares (one compiled forward) unless half an ensemble is larger.
-    lp = LogPosterior(forward, measured, free, fixed, bounds, instrument_sd, chunk=max(CHUNK, walkers // 2), inputs=inputs)
+    lp = LogPosterior(forward, measured, free, fixed, bounds, instrument_sd, chunk=max(CHUNK, walkers // 2), inputs=inputs, angles=angles)
     p = len(lp.names)
     check_walkers(walkers, p)
     if n_tau < 1 or min_steps < 1 or max_steps < min_steps or check_every < 1:
@@ -339,8 +373,8 @@ def sample_posterior(
 def _initial_ball(lp: LogPosterior, init, walkers: int, rng, seed: int) -> np.ndarray:
     spec = lp.spec
     if init is None:
-        fr = fit_least_squares(lp.forward, lp.measured, free=[n for n in spec.names], fixed={k: v for k, v in lp.fixed.items()},
-                               bounds=lp.bounds, instrument_sd=lp.instrument_sd, seed=seed)
+        fr = fit_least_squares(lp.forward, np.where(lp.angles, lp.measured, 50.0), free=[n for n in spec.names], fixed=dict(lp.fixed),
+                               bounds=lp.bounds, instrument_sd=lp.sd, weights=lp.angles.astype(float), seed=seed)
         values = dict(fr.values)
     elif isinstance(init, FitResult):
         values = dict(init.values)
@@ -496,65 +530,5 @@ def _result(sampler, lp: LogPosterior, converged: bool, t0: float, backend_path,
         measured=lp.measured,
         idata=idata,
         backend_path=None if backend_path is None else str(backend_path),
+        at_edge=edges(spec, flat),
     )
-
-
-def save_netcdf(idata, path: str | os.PathLike) -> Path:
-    """Write ArviZ InferenceData to NetCDF atomically (temporary file in the same folder + rename)."""
-    with atomic_path(path) as tmp:
-        idata.to_netcdf(str(tmp))
-    return Path(path)
-
-
-def corner_plot(result: PosteriorResult, *, names: Sequence[str] | None = None, reference: Mapping[str, float] | None = None,
-                path: str | os.PathLike | None = None, title: str | None = None):
-    """Corner plot (matplotlib only): 1-D histograms on the diagonal, 2-D histograms below.
-
-    Arguments:
-        result: a `PosteriorResult`.
-        names: parameters to show (default: all sampled, plus ``mean_tilt``).
-        reference: optional values to mark (e.g. independently measured ones), by name.
-        path: if given, the PNG is written there atomically.
-        title: figure title.
-
-    Returns:
-        The matplotlib figure.
-    """
-    import matplotlib.pyplot as plt
-
-    names = list(names or (list(result.names) + (["mean_tilt"] if "shape" in result.names and "scale" in result.names else [])))
-    k = len(names)
-    fig, axes = plt.subplots(k, k, figsize=(1.9 * k + 1, 1.9 * k + 1), squeeze=False)
-    data = {n: result.draws(n) for n in names}
-    reference = dict(reference or {})
-    for i, ni in enumerate(names):
-        for j, nj in enumerate(names):
-            ax = axes[i, j]
-            if j > i:
-                ax.axis("off")
-                continue
-            if i == j:
-                ax.hist(data[ni], bins=40, color="0.4", histtype="stepfilled", alpha=0.7)
-                for qv in (result.q05.get(ni), result.q95.get(ni)):
-                    if qv is not None:
-                        ax.axvline(qv, color="k", ls=":", lw=0.8)
-                if ni in reference:
-                    ax.axvline(reference[ni], color="C3", lw=1.2)
-                ax.set_yticks([])
-            else:
-                ax.hist2d(data[nj], data[ni], bins=35, cmap="Greys")
-                if nj in reference and ni in reference:
-                    ax.plot(reference[nj], reference[ni], "o", color="C3", ms=4)
-            if i == k - 1:
-                ax.set_xlabel(nj)
-            else:
-                ax.set_xticklabels([])
-            if j == 0 and i > 0:
-                ax.set_ylabel(ni)
-            elif j > 0:
-                ax.set_yticklabels([])
-    if title:
-        fig.suptitle(title)
-    if path is not None:
-        atomic_savefig(fig, path)
-    return fig

@@ -167,6 +167,11 @@ class TracerLStar:
         self.evaluations = 0
         self.seconds = 0.0
 
+    def __reduce__(self):
+        # Pickled (e.g. into Dask tasks) as a reference: the receiving process keeps one instance per
+        # settings (`shared_tracer`), so its BRDF grid, arrays and compiled tracer are built once there.
+        return (shared_tracer, (self.settings, self.progress))
+
     # -- lazily built pieces -------------------------------------------------------------------
     @property
     def sample(self):
@@ -350,6 +355,25 @@ def seed_spread(fn: TracerLStar, theta: Sequence[Sequence[float]], seeds: Sequen
     return {"sd": sd, "seed_sd": seed_sd, "L": L, "se": np.asarray(d["se"]), "L_crn": L0, "theta": theta, "seeds": seeds}
 
 
+_SHARED: dict = {}
+
+
+def shared_tracer(settings: TracerSettings, progress: bool = False) -> TracerLStar:
+    """This process's `TracerLStar` for these settings (created on first use). A process that receives
+    one through pickling (a Dask worker) runs in float64, as the CLI does, and uses the persistent
+    compilation cache."""
+    key = (settings.identity(), bool(progress))
+    if key not in _SHARED:
+        import jax
+
+        from .._cache import enable_compilation_cache
+
+        jax.config.update("jax_enable_x64", True)
+        enable_compilation_cache()
+        _SHARED[key] = TracerLStar(settings, progress=progress)
+    return _SHARED[key]
+
+
 #: θ rows and seeds of the seed-spread measurement of the registered model (inside `TRACER_BOX`:
 #: a well-aligned and a poorly aligned paint, moderate roughness); seeds differ from the CRN seed 0.
 SPREAD_THETA = ((2.0, 1.5, 0.06, 0.7), (4.0, 2.5, 0.09, 0.5))
@@ -374,6 +398,7 @@ def tracer_emulator(
     spread_seeds=SPREAD_SEEDS,
     progress: bool = False,
     analytic_mean: bool = True,
+    client=None,
     **kw,
 ):
     """Factory of the registered ``"tracer-emulator"``: a GP emulator of `TracerLStar` (cached).
@@ -393,6 +418,8 @@ def tracer_emulator(
         analytic_mean: physics-informed GP (default): the analytic single-scatter model
             (`AnalyticForward`, diffuse 0) is the linear prior mean per angle and its L* at 15°,
             25°, 45° (`ANALYTIC_FEATURES`) are extra GP inputs; False: a plain GP over θ.
+        client: a Dask `distributed.Client`: the design's tracer runs are tasks on its workers (each
+            worker builds its BRDF grid and compiles the tracer once, `shared_tracer`).
 
     Returns:
         `TracerEmulator` (an `Emulator` whose `error_sd` includes the seed-to-seed spread).
@@ -417,7 +444,7 @@ def tracer_emulator(
     # a coarse quadrature (24 × 16 nodes: L* within 0.01 of the default 64 × 48, 3× cheaper) keeps MCMC fast
     mean = AnalyticForward(tilt_nodes=24, azimuth_nodes=16).restrict(names, held | {"diffuse": 0.0}) if analytic_mean else None
     em = build_emulator(model, spec, n_train=n_train, n_test=n_test, seed=seed, cache_dir=cache_dir, batch=batch, progress=progress,
-                        mean=mean, mean_features=ANALYTIC_FEATURES if analytic_mean else ())
+                        mean=mean, mean_features=ANALYTIC_FEATURES if analytic_mean else (), client=client)
     build_seconds = time.perf_counter() - t0
     spread = None
     if spread_theta is not None:
