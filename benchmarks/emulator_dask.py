@@ -8,7 +8,7 @@ cache, so both timed clusters start from the same state; each timed build includ
 cluster, the workers' imports, their BRDF grid and their compilation (from that cache). Reports wall
 times, the speed-up of 2 workers over 1 and the machine's load. Writes
 benchmarks/output/emulator_dask.json.
-Run: python benchmarks/emulator_dask.py [--train 16] [--test 8]
+Run: python benchmarks/emulator_dask.py [--train 96] [--test 24]  (the sizes of the shipped wide emulator)
 """
 
 from __future__ import annotations
@@ -41,8 +41,8 @@ def build(workers: int, n_train: int, n_test: int) -> float:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--train", type=int, default=16)
-    ap.add_argument("--test", type=int, default=8)
+    ap.add_argument("--train", type=int, default=96)
+    ap.add_argument("--test", type=int, default=24)
     args = ap.parse_args(argv)
     enable_compilation_cache()
     out = {"train": args.train, "test": args.test, "tracer_runs": args.train + args.test, "rays_per_run": WIDE_TRACER_SETTINGS.rays,

@@ -26,7 +26,10 @@ through the registered tracer emulator (built once and cached; its `error_sd`, h
 CRN-vs-independent-run spread, enters the likelihood). Default free parameters then all four
 (shape, scale, σ, τ). Output in experiments/output/coverage_tracer/.
 
-Run: python experiments/coverage.py [--datasets 20] [--steps 1500] [--walkers 16] [--quick]
+``--workers N`` (a local Dask cluster) or ``--scheduler tcp://host:8786`` runs the tracer runs and
+the datasets' fits and posteriors as Dask tasks, with the same numbers as the serial loop.
+
+Run: python experiments/coverage.py [--datasets 20] [--steps 1500] [--walkers 16] [--quick] [--workers 2]
      python experiments/coverage.py --forward tracer-emulator [--datasets 20]
 """
 
@@ -54,82 +57,121 @@ ALL = ("shape", "scale", "sigma", "tau")
 FREE = ("shape", "scale")
 
 
+_WORKER: dict = {}
+
+
+def _models(forward_name: str, options: dict):
+    """(forward, direct tracer or None, spec, extra fixed) for this process, built once per process."""
+    key = (forward_name, repr(sorted(options.items())))
+    if key not in _WORKER:
+        jax.config.update("jax_enable_x64", True)
+        if forward_name in TRACER_FORWARDS:
+            from paintjax.inverse import TRACER_BOX, WIDE_TRACER_BOX, direct_tracer, make_forward
+
+            forward = make_forward(forward_name, ALL, **options)
+            spec = make_spec(ALL, WIDE_TRACER_BOX if forward_name == "tracer-emulator-wide" else TRACER_BOX)
+            _WORKER[key] = (forward, direct_tracer(forward), spec, {})
+        elif forward_name == "analytic":
+            _WORKER[key] = (AnalyticForward(), None, make_spec(ALL), {"diffuse": 0.0})
+        else:
+            raise ValueError(f"forward must be 'analytic' or one of {TRACER_FORWARDS}, got {forward_name!r}")
+    return _WORKER[key]
+
+
+def clean_curve(forward_name: str, options: dict, i: int, t) -> dict:
+    """Noise-free L* of prior draw i (a task): from the tracer (array and ray seed 1000 + i) or the
+    analytic model; {"error": …} where the draw has no tracer array (a tilt law that cannot fit the film)."""
+    forward, direct, _, _ = _models(forward_name, options)
+    t = np.asarray(t, float)
+    if direct is None:
+        return {"clean": np.asarray(forward(np.tile(np.r_[t, 0.0], (16, 1))))[0], "clean_se": np.zeros(5), "seconds": 0.0}
+    t0 = direct.seconds
+    try:
+        clean, clean_se = direct.evaluate(t[None], seed=1000 + i, return_se=True, mode="rsa")
+    except ValueError as err:  # no array for this tilt law in this film
+        return {"error": str(err)}
+    return {"clean": clean[0], "clean_se": clean_se[0], "seconds": direct.seconds - t0}
+
+
+def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,
+            levels) -> dict:
+    """Least squares and the posterior of one synthetic dataset (a task): its row of the summary."""
+    forward, _, _, extra_fixed = _models(forward_name, options)
+    truth = dict(zip(ALL, map(float, t)))
+    held = {k: v for k, v in truth.items() if k not in free}
+    fr = fit_least_squares(forward, y, free=free, fixed={**extra_fixed, **held}, n_starts=starts, seed=seed + i)
+    best = fr.chi2
+    same = sum(np.isfinite(s["chi2"]) and s["chi2"] <= best + 1e-3 * max(1.0, best) for s in fr.starts)
+    z = {n: (fr.values[n] - truth[n]) / fr.stderr[n] if fr.stderr[n] > 0 else np.nan for n in free}
+    post = sample_posterior(forward, y, free=free, fixed={**extra_fixed, "discrepancy": 0.0, **held}, walkers=walkers, max_steps=steps,
+                            min_steps=steps, check_every=steps, min_ess=0, init=fr, seed=seed + i, progress=False, inference_data=False)
+    row = {"truth": truth, "L_star_clean": np.asarray(clean["clean"]).tolist(), "L_star_clean_se": np.asarray(clean["clean_se"]).tolist(),
+           "L_star": np.asarray(y).tolist(), "lsq": fr.values, "lsq_stderr": fr.stderr,
+           "lsq_chi2": best, "lsq_success": fr.success, "starts_at_best": int(same), "lsq_z": z,
+           "tau_int_max": max(post.tau_int.values()), "n_eff": post.n_eff, "inside": {},
+           # probability integral transform: the posterior CDF at the truth (uniform when calibrated)
+           "pit": {n: float(np.mean(post.draws(n) < truth[n])) for n in free}}
+    for lv in levels:
+        for n in free:
+            lo, hi = post.interval(n, lv)
+            row["inside"][f"{n}@{lv}"] = bool(lo <= truth[n] <= hi)
+    if len(free) == 2:
+        ivals = grid_intervals(forward, y, {**extra_fixed, "discrepancy": 0.0, **held}, levels, free=free)
+        for lv in levels:
+            for j, n in enumerate(free):
+                lo, hi = ivals[lv][j]
+                row["inside"][f"{n}@{lv}@grid"] = bool(lo <= truth[n] <= hi)
+    return row
+
+
 def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Path, free=("shape", "scale"),
-        forward_name: str = "analytic", forward_options: dict | None = None, levels=(0.5, 0.9)) -> dict:
+        forward_name: str = "analytic", forward_options: dict | None = None, levels=(0.5, 0.9), client=None) -> dict:
+    """The study; with a Dask `client` the tracer runs and the datasets' fits and posteriors are tasks on
+    its workers (the same numbers as the serial loop: draws, noise and seeds do not depend on the order)."""
     global FREE
     FREE = tuple(free)
+    options = dict(forward_options or {})
     jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
     tracer = forward_name in TRACER_FORWARDS
+    t_build = time.perf_counter()
+    forward, direct, spec, _ = _models(forward_name, options)
     if tracer:
-        from paintjax.inverse import TRACER_BOX, WIDE_TRACER_BOX, direct_tracer, make_forward, tracer_info
+        from paintjax.inverse import tracer_info
 
-        t_build = time.perf_counter()
-        forward = make_forward(forward_name, ALL, **(forward_options or {}))
         build_info = tracer_info(forward) | {"seconds_this_process": time.perf_counter() - t_build}
-        direct = direct_tracer(forward)
-        spec = make_spec(ALL, WIDE_TRACER_BOX if forward_name == "tracer-emulator-wide" else TRACER_BOX)
-        extra_fixed = {}
-    elif forward_name == "analytic":
-        forward = AnalyticForward()
-        spec = make_spec(ALL)
-        extra_fixed = {"diffuse": 0.0}
-    else:
-        raise ValueError(f"forward must be 'analytic' or one of {TRACER_FORWARDS}, got {forward_name!r}")
+
+    def tasks(fn, *columns):  # serial here, or Dask tasks (results in order)
+        if client is None:
+            return [fn(*args) for args in zip(*columns)]
+        return client.gather(client.map(fn, *columns, pure=False))
+
     # a pool of prior draws: a tilt law whose platelets cannot fit the film (e.g. a steep mean tilt in the wide
     # box) has no tracer array, so its draw is skipped and counted, and the next one is used
     pool = 3 * datasets if forward_name == "tracer-emulator-wide" else datasets  # the other studies keep their draws
     truths = np.asarray(spec.sample_prior(jax.random.key(seed), pool))
-    skipped = []
-    rng = np.random.default_rng(seed)
-    hits = {lv: np.zeros(len(FREE), int) for lv in levels}
-    grid_hits = {lv: np.zeros(len(FREE), int) for lv in levels}
-    rows = []
+    skipped, kept = [], []  # kept: (draw index, noise-free curve), in draw order
     t0 = time.perf_counter()
-    for i, t in enumerate(truths):
-        if len(rows) == datasets:
-            break
-        truth = dict(zip(ALL, map(float, t)))
-        held = {k: v for k, v in truth.items() if k not in FREE}
-        if tracer:
-            try:
-                clean, clean_se = direct.evaluate(t[None], seed=1000 + i, return_se=True, mode="rsa")
-            except ValueError as err:  # no array for this tilt law in this film
-                skipped.append({"truth": truth, "reason": str(err)})
-                print(f"prior draw {i + 1} skipped: {err}", flush=True)
-                continue
-            clean, clean_se = clean[0], clean_se[0]
-        else:
-            clean, clean_se = np.asarray(forward(np.tile(np.r_[t, 0.0], (16, 1))))[0], np.zeros(5)
-        y = clean + rng.normal(0.0, 0.3, 5)
-        fr = fit_least_squares(forward, y, free=FREE, fixed={**extra_fixed, **held}, n_starts=starts, seed=seed + i)
-        best = fr.chi2
-        same = sum(np.isfinite(s["chi2"]) and s["chi2"] <= best + 1e-3 * max(1.0, best) for s in fr.starts)
-        z = {n: (fr.values[n] - truth[n]) / fr.stderr[n] if fr.stderr[n] > 0 else np.nan for n in FREE}
-        post = sample_posterior(forward, y, free=FREE, fixed={**extra_fixed, "discrepancy": 0.0, **held}, walkers=walkers, max_steps=steps, min_steps=steps,
-                                check_every=steps, min_ess=0, init=fr, seed=seed + i, progress=False, inference_data=False)
-        row = {"truth": truth, "L_star_clean": clean.tolist(), "L_star_clean_se": clean_se.tolist(), "L_star": y.tolist(), "lsq": fr.values, "lsq_stderr": fr.stderr,
-               "lsq_chi2": best, "lsq_success": fr.success, "starts_at_best": int(same), "lsq_z": z,
-               "tau_int_max": max(post.tau_int.values()), "n_eff": post.n_eff, "inside": {},
-               # probability integral transform: the posterior CDF at the truth (uniform when calibrated)
-               "pit": {n: float(np.mean(post.draws(n) < truth[n])) for n in FREE}}
-        for lv in levels:
-            for j, n in enumerate(FREE):
-                lo, hi = post.interval(n, lv)
-                inside = bool(lo <= truth[n] <= hi)
-                hits[lv][j] += inside
-                row["inside"][f"{n}@{lv}"] = inside
-        if len(FREE) == 2:
-            ivals = grid_intervals(forward, y, {**extra_fixed, "discrepancy": 0.0, **held}, levels)
-            for lv in levels:
-                for j, n in enumerate(FREE):
-                    lo, hi = ivals[lv][j]
-                    inside = bool(lo <= truth[n] <= hi)
-                    grid_hits[lv][j] += inside
-                    row["inside"][f"{n}@{lv}@grid"] = inside
-        rows.append(row)
-        atomic_write_json(out / "partial.json", {"forward": forward_name, "free": list(FREE), "rows": rows})  # usable if interrupted
-        print(f"dataset {len(rows)}/{datasets}: χ²={best:.3g}, starts at best {same}/{fr.n_starts}, "
-              f"inside@{levels[-1]:g}={[row['inside'][f'{n}@{levels[-1]}'] for n in FREE]}, n_eff={post.n_eff:.0f} ({time.perf_counter() - t0:.0f} s)", flush=True)
+    nxt = 0
+    while len(kept) < datasets and nxt < len(truths):  # waves of the draws still needed: the first `datasets` usable ones
+        idx = list(range(nxt, min(len(truths), nxt + datasets - len(kept))))
+        for i, c in zip(idx, tasks(clean_curve, [forward_name] * len(idx), [options] * len(idx), idx, [truths[i] for i in idx])):
+            if "error" in c:
+                skipped.append({"truth": dict(zip(ALL, map(float, truths[i]))), "reason": c["error"]})
+                print(f"prior draw {i + 1} skipped: {c['error']}", flush=True)
+            else:
+                kept.append((i, c))
+        nxt = idx[-1] + 1
+    rng = np.random.default_rng(seed)
+    noisy = [c["clean"] + rng.normal(0.0, 0.3, 5) for _, c in kept]  # the noise stream in draw order
+    n = len(kept)
+    rows = tasks(analyse, [forward_name] * n, [options] * n, [i for i, _ in kept], [truths[i] for i, _ in kept], [c for _, c in kept],
+                 noisy, [FREE] * n, [starts] * n, [steps] * n, [walkers] * n, [seed] * n, [levels] * n)
+    hits = {lv: np.array([sum(r["inside"][f"{p}@{lv}"] for r in rows) for p in FREE]) for lv in levels}
+    grid_hits = {lv: np.array([sum(r["inside"].get(f"{p}@{lv}@grid", False) for r in rows) for p in FREE]) for lv in levels}
+    for k, row in enumerate(rows, start=1):
+        print(f"dataset {k}/{datasets}: χ²={row['lsq_chi2']:.3g}, starts at best {row['starts_at_best']}/{starts}, "
+              f"inside@{levels[-1]:g}={[row['inside'][f'{p}@{levels[-1]}'] for p in FREE]}, n_eff={row['n_eff']:.0f}", flush=True)
+    tracer_seconds = sum(c["seconds"] for _, c in kept)
     coverage = {}
     for lv in levels:
         lo, hi = binom.ppf(0.025, datasets, lv), binom.ppf(0.975, datasets, lv)
@@ -172,16 +214,16 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     }
     if tracer:
         summary["emulator"] = {k: v for k, v in build_info.items() if not k.startswith("seed_spread_L")}
-        summary["tracer_seconds"] = direct.seconds
+        summary["tracer_seconds"] = tracer_seconds
     atomic_write_json(out / "summary.json", summary)
     plot(summary, out / "coverage.png")
     return summary
 
 
-def grid_intervals(forward, y, fixed, levels, n: int = 80) -> dict:
-    """Equal-tailed credible intervals of the two free parameters from the exact posterior on an
-    n × n grid in the unit cube of their (log) boxes (marginals by summation)."""
-    lp = LogPosterior(forward, y, FREE, fixed)
+def grid_intervals(forward, y, fixed, levels, n: int = 80, free=None) -> dict:
+    """Equal-tailed credible intervals of the two free parameters (default `FREE`) from the exact posterior
+    on an n × n grid in the unit cube of their (log) boxes (marginals by summation)."""
+    lp = LogPosterior(forward, y, tuple(free or FREE), fixed)
     z = (np.arange(n) + 0.5) / n
     Z = np.array([[a, b] for a in z for b in z])
     U = np.log(Z) - np.log1p(-Z)
@@ -246,6 +288,9 @@ def main(argv=None):
                     "tracer-emulator-wide: truths from WIDE_TRACER_BOX)")
     ap.add_argument("--levels", default="0.5,0.9", help="credible levels whose coverage is counted (default 0.5,0.9)")
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--workers", type=int, default=0, help="run the tracer runs and the datasets as tasks on a local Dask "
+                    "cluster of this many worker processes (default 0: serial, in this process)")
+    ap.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786) to run the tasks on")
     ap.add_argument("--out", help=f"output folder (default {OUT} or {OUT_TRACER})")
     a = ap.parse_args(argv)
     if a.quick or os.environ.get("PAINTJAX_QUICK", "") not in ("", "0"):
@@ -254,7 +299,20 @@ def main(argv=None):
     free = a.free or ("shape,scale,sigma,tau" if tracer else "shape,scale")
     out = Path(a.out or (OUT_TRACER.with_name(OUT_TRACER.name + "_wide") if a.forward == "tracer-emulator-wide" else OUT_TRACER if tracer else OUT))
     levels = tuple(float(v) for v in a.levels.split(","))
-    s = run(a.datasets, a.steps, a.walkers, a.starts, a.seed, out, tuple(free.split(",")), a.forward, levels=levels)
+    client = None
+    if a.scheduler or a.workers > 0:
+        from distributed import Client, LocalCluster
+
+        client = Client(a.scheduler) if a.scheduler else Client(LocalCluster(n_workers=a.workers, threads_per_worker=1,
+                                                                               dashboard_address=":0"))
+    try:
+        s = run(a.datasets, a.steps, a.walkers, a.starts, a.seed, out, tuple(free.split(",")), a.forward, levels=levels, client=client)
+    finally:
+        if client is not None:
+            cluster = getattr(client, "cluster", None)
+            client.close()
+            if cluster is not None:
+                cluster.close()
     for lv, c in s["coverage"].items():
         print(f"coverage {float(lv):.0%}: MCMC {c['hits']}, exact grid {c.get('grid_hits')} of {c['datasets']} "
               f"(binomial 95 % range {c['binomial_95_range']})")

@@ -135,3 +135,28 @@ def test_cli_batch_on_the_shipped_example(tmp_path, capsys):
     assert (tmp_path / "fit_panels.nc").stat().st_size > 0 and len(list((tmp_path / "figures").glob("*.png"))) == 3
     assert report["panels"][1]["dof"] == 5 + 2 - 4  # silver2 carries its published σ, τ as known inputs
     assert main(argv) == 0
+
+
+def test_coverage_replicates_run_as_dask_tasks_with_the_serial_numbers(tmp_path):
+    """`experiments/coverage.py --workers 2`: the noise-free curves and every dataset's fit and posterior
+    are tasks on a local cluster, and the study's numbers are those of the serial run (draws, noise and
+    seeds do not depend on where or in which order the tasks run)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    pytest.importorskip("distributed")
+    script = Path(__file__).parents[1] / "experiments" / "coverage.py"
+    common = ["--datasets", "3", "--steps", "120", "--walkers", "8", "--starts", "2", "--seed", "11"]
+    for name, extra in (("serial", []), ("dask", ["--workers", "2"])):
+        subprocess.run([sys.executable, str(script), *common, *extra, "--out", str(tmp_path / name)], check=True, capture_output=True,
+                       timeout=600)
+    serial, spread = (json.loads((tmp_path / name / "summary.json").read_text()) for name in ("serial", "dask"))
+    assert len(serial["rows"]) == len(spread["rows"]) == 3
+    for a, b in zip(serial["rows"], spread["rows"]):
+        assert a["truth"] == b["truth"]
+        np.testing.assert_allclose(a["L_star"], b["L_star"], rtol=1e-12)
+        np.testing.assert_allclose([a["lsq"][n] for n in a["lsq"]], [b["lsq"][n] for n in b["lsq"]], rtol=1e-6)
+        np.testing.assert_allclose(list(a["pit"].values()), list(b["pit"].values()), atol=1e-9)
+    assert serial["coverage"] == spread["coverage"]

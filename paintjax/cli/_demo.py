@@ -50,6 +50,7 @@ def inference(*, seed: int = 0, progress: bool = True) -> dict:
             "L_star_q50": r["L* and inputs"]["check"]["L_star_q50"],
             "predictive_p_value": strict["check"]["p_value"],
             "verdict": r["verdict"],
+            "at_edge": post["at_edge"],
             "seconds": time.perf_counter() - t0,
         }
     return out
@@ -73,6 +74,8 @@ def run(args) -> int:
                         f"{v['q95'] * _SHOWN[k][1]:.3g}]" for k, v in p["estimates"].items())
         print(f"  {name}: {est} (posterior mean [90 %])")
         print(f"    L* measured {np.round(p['measured'], 1).tolist()}, posterior median {np.round(p['L_star_q50'], 1).tolist()}")
+        for k, side in p["at_edge"].items():
+            print(f"    WARNING: the posterior of {_SHOWN.get(k, (k,))[0]} piles against the {side} edge of the prior box")
         verdict = ("the inputs and the L* DISAGREE within the stated errors" if p["verdict"] == "disagree"
                    else "the inputs and the L* agree within the stated errors")
         print(f"    with no model discrepancy: predictive p = {p['predictive_p_value']:.2g}: {verdict} ({p['seconds']:.0f} s)")

@@ -19,7 +19,8 @@ def save_netcdf(idata, path: str | os.PathLike) -> Path:
 
 def corner_plot(result: PosteriorResult, *, names: Sequence[str] | None = None, reference: Mapping[str, float] | None = None,
                 path: str | os.PathLike | None = None, title: str | None = None):
-    """Corner plot (matplotlib only): 1-D histograms on the diagonal, 2-D histograms below.
+    """Corner plot (the `corner` package): marginal histograms with their 5 / 50 / 95 % quantiles on the
+    diagonal, 2-D histograms with 1σ/2σ contours below.
 
     Arguments:
         result: a `PosteriorResult`.
@@ -31,41 +32,17 @@ def corner_plot(result: PosteriorResult, *, names: Sequence[str] | None = None, 
     Returns:
         The matplotlib figure.
     """
-    import matplotlib.pyplot as plt
+    import corner
+    import numpy as np
 
     names = list(names or (list(result.names) + (["mean_tilt"] if "shape" in result.names and "scale" in result.names else [])))
-    k = len(names)
-    fig, axes = plt.subplots(k, k, figsize=(1.9 * k + 1, 1.9 * k + 1), squeeze=False)
-    data = {n: result.draws(n) for n in names}
+    data = np.column_stack([result.draws(n) for n in names])
     reference = dict(reference or {})
-    for i, ni in enumerate(names):
-        for j, nj in enumerate(names):
-            ax = axes[i, j]
-            if j > i:
-                ax.axis("off")
-                continue
-            if i == j:
-                ax.hist(data[ni], bins=40, color="0.4", histtype="stepfilled", alpha=0.7)
-                for qv in (result.q05.get(ni), result.q95.get(ni)):
-                    if qv is not None:
-                        ax.axvline(qv, color="k", ls=":", lw=0.8)
-                if ni in reference:
-                    ax.axvline(reference[ni], color="C3", lw=1.2)
-                ax.set_yticks([])
-            else:
-                ax.hist2d(data[nj], data[ni], bins=35, cmap="Greys")
-                if nj in reference and ni in reference:
-                    ax.plot(reference[nj], reference[ni], "o", color="C3", ms=4)
-            if i == k - 1:
-                ax.set_xlabel(nj)
-            else:
-                ax.set_xticklabels([])
-            if j == 0 and i > 0:
-                ax.set_ylabel(ni)
-            elif j > 0:
-                ax.set_yticklabels([])
+    truths = [reference.get(n) for n in names] if any(n in reference for n in names) else None
+    fig = corner.corner(data, labels=names, quantiles=[0.05, 0.5, 0.95], show_titles=True, title_fmt=".3g", truths=truths,
+                        truth_color="C3", levels=(1 - np.exp(-0.5), 1 - np.exp(-2.0)), plot_datapoints=False)
     if title:
-        fig.suptitle(title)
+        fig.suptitle(title, y=1.02)
     if path is not None:
         atomic_savefig(fig, path)
     return fig
