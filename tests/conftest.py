@@ -17,7 +17,7 @@ jax.config.update("jax_enable_x64", True)
 #: short ones fill in behind (longest-processing-time-first). xdist's default order (modules by
 #: number of tests) moves with every test added: 854, 925 and 928 s on three runs of nearly the same
 #: suite that day, 853 and 885 s this way. test_platelet_brdf_truth.py (2026-12-03) takes about 4 min.
-LONG_MODULES_FIRST = ("test_tracer.py", "test_tracer_single_scatter.py", "test_commands.py", "test_platelet_brdf_truth.py")
+LONG_MODULES_FIRST = ("test_tracer.py", "test_tracer_single_scatter.py", "test_commands.py", "test_platelet_brdf_truth.py", "test_panels.py")
 
 
 def pytest_collection_modifyitems(session, config, items):

@@ -107,6 +107,7 @@ def test_readable_table(capsys):
         (["fit", "--data", "example", "--inputs", "rq"], "--inputs and --chain apply to one panel"),
         (["fit", "--data", "example", "--posterior", "--walkers", "7"], "--walkers must be even"),
         (["fit", "--no-figures"], "--no-figures applies to --data"),
+        (["posterior", "--walkers", "3"], "--walkers must be even"),
         (["fit", "--data", "/nonexistent/panels.csv"], "--data file not found"),
     ],
 )

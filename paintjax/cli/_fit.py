@@ -59,6 +59,12 @@ def register(sub) -> None:
         description="Levenberg–Marquardt fit (Optimistix) of microstructure parameters to five-angle L*; "
         "--posterior adds an emcee posterior (progress bar, HDF5 chain that resumes).",
     )
+    add_fit_arguments(p)
+    p.set_defaults(func=run)
+
+
+def add_fit_arguments(p) -> None:
+    """The options of `fit` (and of `posterior`, which is `fit --posterior`)."""
     g = p.add_mutually_exclusive_group()
     g.add_argument("--sample", help="reference sample whose measured L* to fit: silver1 or silver2 (default silver1)")
     g.add_argument("--measured", help="five L* values at 15,25,45,75,110°, e.g. 143.3,107.2,58.6,37.2,32.1")
@@ -86,7 +92,6 @@ def register(sub) -> None:
     p.add_argument("--out", help="folder for posterior.nc and corner.png (default: none written)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_json_argument(p)
-    p.set_defaults(func=run)
 
 
 def compute(args) -> dict:

@@ -15,8 +15,9 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from ..instrument._lightness import flop_index
-from ._fit import FitResult, check_measured, fit_least_squares
+from ._fit import FitResult, fit_least_squares
 from ._forward import ForwardModel
+from ._observations import check_measured
 
 
 @dataclasses.dataclass

@@ -15,7 +15,8 @@ from __future__ import annotations
 import equinox as eqx
 import numpy as np
 
-from ._fit import evaluate_in_chunks, known_inputs
+from ._fit import evaluate_in_chunks
+from ._observations import known_inputs
 from ._profilometer import SIGMA_DEFINITIONS, ReadingModel, normal2_log_density
 from ._tilt_measurement import gamma_fit_moments
 

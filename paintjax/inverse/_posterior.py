@@ -35,8 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._io import nearest_existing
-from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, check_angles, check_instrument_sd, check_measured, fit_least_squares
+from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, fit_least_squares
 from ._forward import ForwardModel
+from ._observations import check_angles, check_instrument_sd, check_measured
 
 
 @dataclasses.dataclass
