@@ -108,6 +108,7 @@ def test_readable_table(capsys):
         (["fit", "--data", "example", "--posterior", "--walkers", "7"], "--walkers must be even"),
         (["fit", "--no-figures"], "--no-figures applies to --data"),
         (["posterior", "--walkers", "3"], "--walkers must be even"),
+        (["fit", "--data", "example", "--starts", "0"], "--starts must be >= 1"),
         (["fit", "--data", "/nonexistent/panels.csv"], "--data file not found"),
     ],
 )

@@ -108,10 +108,7 @@ def compute(args) -> dict:
         measured, label = list(s.L_star), s.name
     fixed = parse_fixed(args.fix)
     free = parse_free(args.free, [n for n in DEFAULT_FREE if n not in fixed])
-    if args.starts < 1:
-        raise ValueError(f"--starts must be >= 1, got {args.starts}")
-    if args.max_steps < 1:
-        raise ValueError(f"--max-steps must be >= 1, got {args.max_steps}")
+    check_run_sizes(args)
     if args.inputs != "none" and not args.posterior:
         raise ValueError("--inputs applies to --posterior (the published inputs enter the posterior as data)")
     if args.inputs != "none" and args.measured is not None:
@@ -122,8 +119,6 @@ def compute(args) -> dict:
         raise ValueError("--no-figures applies to --data")
     if args.overwrite and not args.chain:
         raise ValueError("--overwrite applies to --chain")
-    if args.posterior and (args.walkers < 2 or args.walkers % 2):  # the full check (≥ 2 × sampled parameters) follows
-        raise ValueError(f"--walkers must be even and >= 2 × the sampled parameters, got {args.walkers}")
     forward = make_forward(args.forward, free, fixed, progress=not args.no_progress and not args.json)
     # Defaults adapt to the model (a mirror model has no σ, τ); explicit --free is taken as given.
     lsq_free = free if args.free is not None else tuple(n for n in free if n in forward.parameter_names or n == "discrepancy")
@@ -202,6 +197,16 @@ def _posterior_setup(args, forward, measured, lsq_free, fixed):
     return post_free, post_fixed, inputs
 
 
+def check_run_sizes(args) -> None:
+    """--starts, --max-steps and --walkers, for one panel and for --data alike (before any work)."""
+    if args.starts < 1:
+        raise ValueError(f"--starts must be >= 1, got {args.starts}")
+    if args.max_steps < 1:
+        raise ValueError(f"--max-steps must be >= 1, got {args.max_steps}")
+    if args.posterior and (args.walkers < 2 or args.walkers % 2):  # the full check (≥ 2 × sampled parameters) follows
+        raise ValueError(f"--walkers must be even and >= 2 × the sampled parameters, got {args.walkers}")
+
+
 def example_panels() -> str:
     """Path of the 3-panel example CSV shipped with the package (`--data example`)."""
     from importlib.resources import files
@@ -218,9 +223,9 @@ def run_batch(args) -> int:
 
     if args.inputs != "none" or args.chain:
         raise ValueError("--inputs and --chain apply to one panel: with --data, give known inputs as columns (sigma, sigma_sd, …)")
-    if args.posterior and (args.walkers < 2 or args.walkers % 2 or args.max_steps < 1 or not args.min_ess > 0):
-        raise ValueError(f"--walkers must be even and >= 2 × the sampled parameters, --max-steps >= 1 and --min-ess > 0, got "
-                         f"{args.walkers}, {args.max_steps}, {args.min_ess}")
+    check_run_sizes(args)
+    if args.posterior and not args.min_ess > 0:
+        raise ValueError(f"--min-ess must be > 0, got {args.min_ess}")
     if args.workers < 1:
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     fixed = parse_fixed(args.fix)

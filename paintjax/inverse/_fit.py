@@ -38,7 +38,7 @@ import optimistix as optx
 
 from ._forward import ForwardModel, Restricted, _jit_evaluate
 from ._observations import check_instrument_sd, check_measured, prior_arrays
-from ._parameters import ParameterSpec, make_spec
+from ._parameters import ParameterSpec, make_spec, unit_to_value
 
 INSTRUMENT_SD = 0.3
 #: |u| beyond which a parameter counts as at the edge of its box (unit-cube coordinate within 1e-4 of 0 or 1).
@@ -500,8 +500,7 @@ def _compiled(k: int, m: int, max_steps: int, rtol: float, atol: float):
 
     def residual(u, args):
         ys, ws, ss, a, b, is_log, pv, pw = args
-        t = a + (b - a) * jax.nn.sigmoid(u)  # the physical values x(u) (`ParameterSpec.from_unconstrained`)
-        x = jnp.where(is_log, jnp.exp(jnp.where(is_log, t, 0.0)), t)
+        x = unit_to_value(a, b, is_log, jax.nn.sigmoid(u))  # the physical values (`ParameterSpec.from_unconstrained`)
         return jnp.concatenate([ws * (F(u) - ys) / ss, pw * (x - pv)])
 
     solver = optx.LevenbergMarquardt(rtol=rtol, atol=atol)

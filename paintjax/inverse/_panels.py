@@ -215,11 +215,17 @@ def _panel_posterior(fwd, names, L, sd, have, known, fr, settings: dict, seed: i
     return out
 
 
-def _write_table(path: Path, rows: list[dict]) -> None:
-    """All rows (union of their columns) to CSV, written atomically (`atomic_path`)."""
+def _columns(rows: list[dict]) -> list[str]:
+    """The union of the rows' columns, in the order they first appear."""
     columns: list[str] = []
     for r in rows:
         columns += [k for k in r if k not in columns]
+    return columns
+
+
+def _write_table(path: Path, rows: list[dict]) -> None:
+    """All rows (union of their columns) to CSV, written atomically (`atomic_path`)."""
+    columns = _columns(rows)
     with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
         w = csv.DictWriter(fh, fieldnames=columns)
         w.writeheader()
@@ -232,11 +238,8 @@ def _write_netcdf(path: Path, rows: list[dict]) -> None:
     text as strings), written atomically as NetCDF (h5netcdf)."""
     import xarray as xr
 
-    columns: list[str] = []
-    for r in rows:
-        columns += [k for k in r if k not in columns and k != "id"]
     data = {}
-    for c in columns:
+    for c in [c for c in _columns(rows) if c != "id"]:
         values = [r.get(c) for r in rows]
         numbers = [_as_number(v) for v in values]  # rows resumed from the CSV hold their numbers as text
         if c not in TEXT_COLUMNS and all(x is not None for x in numbers):

@@ -111,6 +111,14 @@ def _logit(z):
     return jnp.log(z) - jnp.log1p(-z)
 
 
+def unit_to_value(a, b, is_log, z, xp=jnp):
+    """z ∈ [0, 1] → x on the box whose ends are a, b in its own coordinate (log where `is_log`): the map
+    of `ParameterSpec.from_unit`, for code that holds the arrays (`ParameterSpec._a`, `_b`, `_is_log`)
+    rather than the spec; `xp` is jax.numpy or NumPy."""
+    t = a + (b - a) * z
+    return xp.where(is_log, xp.exp(xp.where(is_log, t, 0.0)), t)
+
+
 class ParameterSpec:
     """An ordered set of free parameters with vectorised maps between x (physical) and u (real line).
 
@@ -160,8 +168,7 @@ class ParameterSpec:
 
     def from_unit(self, z: Float[ArrayLike, "... p"]) -> Float[Array, "... p"]:
         """z ∈ [0, 1] → x."""
-        t = self._a + (self._b - self._a) * jnp.asarray(z)
-        return jnp.where(self._is_log, jnp.exp(jnp.where(self._is_log, t, 0.0)), t)
+        return unit_to_value(self._a, self._b, self._is_log, jnp.asarray(z))
 
     def to_unconstrained(self, x: Float[ArrayLike, "... p"]) -> Float[Array, "... p"]:
         """x (strictly inside the bounds) → u ∈ ℝ^p."""
@@ -175,8 +182,7 @@ class ParameterSpec:
         """NumPy version of `from_unconstrained` (no JAX dispatch; for host-side hot loops)."""
         with np.errstate(over="ignore"):
             z = 1.0 / (1.0 + np.exp(-np.asarray(u, dtype=float)))
-        t = self._a + (self._b - self._a) * z
-        return np.where(self._is_log, np.exp(np.where(self._is_log, t, 0.0)), t)
+        return unit_to_value(self._a, self._b, self._is_log, z, xp=np)
 
     def log_det_jacobian(self, u: Float[ArrayLike, "... p"]) -> Float[Array, "..."]:
         """log |dx/du| summed over parameters (add to a log density in x to get one in u)."""
