@@ -1,7 +1,8 @@
 """paintjax: a hybrid ray-wave appearance model of metallic paint, in JAX.
 
 The subpackages follow the light: `optics` → `wave` → `brdf` → `microstructure` → `instrument` →
-`tracer` → `inverse`; `simulate` assembles a paint from them, and `cli` is the console script.
+`tracer` → `appearance` (→ `render`, the optional Mitsuba 3 extra) and `inverse`; `simulate`
+assembles a paint from them, and `cli` is the console script.
 This namespace re-exports each stage's main names; the subpackages hold the rest of their public
 API.
 
@@ -9,12 +10,15 @@ Float64 is *not* enabled on import. The CLI, the experiments and the tests enabl
 (`jax.config.update("jax_enable_x64", True)`); library users who need it do the same.
 """
 
-from . import brdf, instrument, inverse, microstructure, optics, tracer, wave
+from . import appearance, brdf, instrument, inverse, microstructure, optics, tracer, wave
 from ._cache import cache_key, cached_arrays, default_cache_dir, enable_compilation_cache
 from ._io import atomic_savefig, atomic_savez, atomic_write_json, to_jsonable
 
 # the forward pipeline: a paint's inputs → five-angle L*
 from ._pipeline import array_overrides, platelet_brdf, sample_array, simulate
+
+# the paint's gonio BRDF and the car-paint model renderers use (`paintjax.render` draws it in Mitsuba 3)
+from .appearance import CarPaintBRDF, CarPaintFit, GonioTable, car_paint_for_sample, fit_car_paint, gonio_table, load_car_paint
 
 # published reference samples
 from ._samples import Measured, Sample, load_sample, sample_names

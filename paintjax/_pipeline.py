@@ -228,6 +228,7 @@ def simulate(
     waviness: float = 0.0,
     illumination_deg: float = 45.0,
     aspecular_deg=None,
+    geometry=None,
     measured=None,
     rays: int | None = None,
     seed: int = 0,
@@ -241,7 +242,8 @@ def simulate(
     """Multi-angle tracer prediction for a sample with overrides, as the CLI's JSON dict (plus extras).
 
     `illumination_deg`, `aspecular_deg`: the instrument (`instrument_geometry`; default 45° and the five
-    standard angles). `measured`: L* to compare with, one per angle (`measured_lightness`; default the
+    standard angles); `geometry`: any `Geometry` instead (`custom_geometry`: out-of-plane detectors, other
+    incidences; its apertures are kept). `measured`: L* to compare with, one per angle (`measured_lightness`; default the
     sample's published values in their geometry, else none). "flop_index" is None unless the geometry
     has 15°, 45° and 110° at 45° illumination.
 
@@ -252,6 +254,7 @@ def simulate(
     (rays so far, the worst L* standard error, seconds) and one per wavelength.
     """
     from ._samples import load_sample
+    from .instrument._geometry import Geometry
     from .microstructure._grid import build_grid
     from .microstructure._statistics import tilt_ks
     from .microstructure._tilt import GammaTilt
@@ -273,7 +276,12 @@ def simulate(
     _seed_state(seed)
     if brdf == "mirror" and (sigma is not None or tau is not None):
         raise ValueError("sigma and tau apply to --brdf wave or kirchhoff only (mirror platelets are smooth)")
-    geometry = instrument_geometry(illumination_deg, aspecular_deg)
+    custom = geometry is not None
+    if custom and not isinstance(geometry, Geometry):
+        raise ValueError(f"geometry must be a paintjax Geometry (ma98_geometry, custom_geometry), got {type(geometry).__name__}")
+    if custom and aspecular_deg is not None:
+        raise ValueError("give either geometry or aspecular_deg, not both")
+    geometry = geometry if custom else instrument_geometry(illumination_deg, aspecular_deg)
     measured_L = measured_lightness(s, geometry, measured)
     n = s.binder_index
     sigma = s.sigma.value if sigma is None else sigma
@@ -291,7 +299,9 @@ def simulate(
                       "steep orientations were redrawn", RuntimeWarning, stacklevel=2)
     grid = build_grid(array)
     aperture = MIRROR_APERTURE_DEG if platelets[0].is_delta else 0.0
-    if aperture:
+    if custom:
+        aperture = geometry.detector_aperture_deg
+    elif aperture:
         geometry = instrument_geometry(illumination_deg, aspecular_deg, detector_aperture_deg=aperture)
     kwargs = dict(grid=grid, n=n, clearcoat_thickness=s.clearcoat_thickness, primer_albedo=primer_albedo, waviness_deg=waviness, seed=seed,
                   single_scatter=single_scatter, options=options)

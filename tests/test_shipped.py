@@ -29,7 +29,25 @@ def test_shipped_emulator_matches_the_current_physics(tmp_path, monkeypatch):
     assert str(em.source).startswith("CallableForward(TracerLStar")  # the physics' identity, not the file it came from
     build_reading_model(progress=False)  # the roughness reading model ships too
     assert not (tmp_path / "empty").exists()  # nothing was built or written
-    assert sorted(p.name.split("-")[0] for p in SHIPPED_DIR.glob("*.npz")) == ["emulator", "roughness", "tracer"]
+    assert sorted({p.name.split("-")[0] for p in SHIPPED_DIR.glob("*.npz")}) == ["emulator", "gonio", "roughness", "tracer"]
+
+
+def test_shipped_gonio_tables_match_the_current_physics(tmp_path, monkeypatch):
+    """`paintjax render --sample silver1|silver2` needs no tracing: both samples' default gonio tables ship
+    (rebuild with `paintjax gonio --sample silverN` after a physics change and copy the `gonio-*.npz` files)."""
+    from paintjax import _pipeline
+    from paintjax.appearance import car_paint_for_sample
+
+    monkeypatch.setenv("PAINTJAX_CACHE", str(tmp_path / "empty"))
+
+    def no_tracer(*args, **kwargs):
+        raise AssertionError("the tracer ran: no shipped gonio table matches the current physics")
+
+    monkeypatch.setattr(_pipeline, "simulate", no_tracer)
+    for sample in ("silver1", "silver2"):
+        fit = car_paint_for_sample(sample)
+        assert fit.converged and fit.table.reflectance_factor.size == 265 and fit.table.is_ma98.sum() == 19
+    assert not (tmp_path / "empty").exists()
 
 
 def test_a_damaged_shipped_file_is_never_used(tmp_path, monkeypatch):

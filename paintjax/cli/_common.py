@@ -50,6 +50,15 @@ def add_json_argument(parser) -> None:
     parser.add_argument("--json", action="store_true", help="print machine-readable JSON to stdout instead of a table")
 
 
+def add_paint_arguments(parser) -> None:
+    """`--sample` and the tilt-law and roughness overrides (`--shape`, `--scale`, `--sigma`, `--tau`) of a simulated paint."""
+    parser.add_argument("--sample", default="silver1", help="reference sample: silver1 or silver2 (default silver1)")
+    parser.add_argument("--shape", type=float, help="tilt gamma shape (> 0); default: the sample's")
+    parser.add_argument("--scale", type=float, help="tilt gamma scale [deg] (> 0); default: the sample's")
+    parser.add_argument("--sigma", type=float, help="platelet rms roughness σ [µm]; default: the sample's (0.051)")
+    parser.add_argument("--tau", type=float, help="platelet correlation length τ [µm]; default: the sample's (0.64)")
+
+
 def add_array_arguments(parser) -> None:
     """`--pvc`, `--d50` and `--platelet-thickness`: the platelet overrides of `array_overrides`."""
     from ..microstructure._array import MAX_PVC

@@ -12,7 +12,7 @@ import os
 import sys
 
 #: Sub-command modules under paintjax.cli, in the order `--help` lists them.
-COMMANDS = ("demo", "microfacet", "array", "brdf", "lobe", "fit", "posterior", "design", "simulate", "table1")
+COMMANDS = ("demo", "microfacet", "array", "brdf", "lobe", "fit", "posterior", "design", "simulate", "table1", "gonio", "render")
 
 
 class _OneLineParser(argparse.ArgumentParser):

@@ -7,7 +7,15 @@ import numpy as np
 from .._cache import enable_compilation_cache
 from .._pipeline import BRDF_METHODS, BRDFS, DEFAULT_PRIMER_ALBEDO, DEFAULT_TARGET_SE, simulate
 from ..wave._profiles import CORRELATIONS
-from ._common import add_array_arguments, add_json_argument, add_output_argument, parse_distinct, parse_floats, print_json
+from ._common import (
+    add_array_arguments,
+    add_json_argument,
+    add_output_argument,
+    add_paint_arguments,
+    parse_distinct,
+    parse_floats,
+    print_json,
+)
 
 
 def register(sub) -> None:
@@ -18,11 +26,7 @@ def register(sub) -> None:
         "multi-angle spectrophotometer (default: 45° illumination, aspecular 15, 25, 45, 75, 110°; MA98's other angles "
         "with --illumination and --aspecular). Lengths in µm, angles in degrees.",
     )
-    p.add_argument("--sample", default="silver1", help="reference sample: silver1 or silver2 (default silver1)")
-    p.add_argument("--shape", type=float, help="tilt gamma shape (> 0); default: the sample's")
-    p.add_argument("--scale", type=float, help="tilt gamma scale [deg] (> 0); default: the sample's")
-    p.add_argument("--sigma", type=float, help="platelet rms roughness σ [µm]; default: the sample's (0.051)")
-    p.add_argument("--tau", type=float, help="platelet correlation length τ [µm]; default: the sample's (0.64)")
+    add_paint_arguments(p)
     p.add_argument("--thickness", type=float, help="basecoat thickness h_b [µm]; default: the sample's (20)")
     add_array_arguments(p)
     p.add_argument("--brdf", choices=BRDFS, default="wave",

@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
 
+from .._optx import result_message
 from ._forward import ForwardModel, Restricted, _jit_evaluate
 from ._observations import check_instrument_sd, check_measured, prior_arrays
 from ._parameters import ParameterSpec, make_spec, unit_to_value
@@ -287,7 +288,7 @@ def fit_least_squares(
     ok = ((codes == 0) | stalled) & np.isfinite(chi2_all)
     starts = []
     for u, c, k, e, st in zip(u_all, chi2_all, codes, edge, stalled):
-        msg = _message(int(k))
+        msg = result_message(int(k))
         if st:
             msg = "converged to the bound of " + ", ".join(n for n, flag in zip(sub.names, e) if flag)
         starts.append({"x": sub.as_dict(np.asarray(sub.from_unconstrained(u))), "chi2": float(c), "status": msg})
@@ -357,20 +358,6 @@ def fit_least_squares(
         aspecular_deg=np.asarray(forward.aspecular_deg),
         at_bound=at_bound,
     )
-
-
-_SHORT = {1: "max_steps reached", 7: "max_steps reached", 8: "diverged", 9: "non-finite values"}
-
-
-def _message(code: int) -> str:
-    if code == 0:
-        return "successful"
-    if code in _SHORT:
-        return _SHORT[code]
-    try:
-        return str(optx.RESULTS._index_to_message[code]).split("\n")[0] or f"failed (code {code})"
-    except Exception:  # pragma: no cover - message lookup is cosmetic
-        return f"failed (code {code})"
 
 
 _COMPILED: dict = {}
