@@ -18,7 +18,7 @@ cone unless `--no-mis`). `--coherent-width-factor F` widens the platelets' coher
 diagnostic, not physics); `--target-se 0` and `--plain-rays 0` skip those runs.
 
 Usage: python benchmarks/tracer.py [--rays 65536] [--target-se 0.3] [--plain-rays 8192] [--coherent-width-factor 1]
-       [--detector-aperture 0] [--no-mis] [--reverse-share 1] [--forward-max-rays 4000000] [--ttp-seeds 2] [--json]
+       [--detector-aperture 0] [--no-mis] [--reverse-share 1] [--forward-max-rays 4000000] [--ttp-seeds 2] [--lanes 2048] [--json]
 """
 
 from __future__ import annotations
@@ -63,6 +63,7 @@ def main() -> int:
     ap.add_argument("--forward-max-rays", type=int, default=4_000_000,
                     help="ray ceiling of the forward-alone time-to-precision run (0 skips it)")
     ap.add_argument("--ttp-seeds", default="2", help="comma-separated seeds of the time-to-precision runs")
+    ap.add_argument("--lanes", type=int, default=TracerOptions().lanes, help="rays in flight per device (TracerOptions.lanes)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
@@ -78,8 +79,8 @@ def main() -> int:
         width = args.coherent_width_factor * coherent_lobe_width(0.5, s.binder_index, 16.0)
         brdf = platelet_brdf_table(s.sigma.value, s.tau.value, n_medium=s.binder_index, coherent_width=width)
     geo = ma98_geometry(45.0, detector_aperture_deg=args.detector_aperture)
-    opt = TracerOptions(mis=not args.no_mis, reverse_share=args.reverse_share)
-    opt_fwd = TracerOptions(mis=not args.no_mis, reverse_share=0.0)
+    opt = TracerOptions(lanes=args.lanes, mis=not args.no_mis, reverse_share=args.reverse_share)
+    opt_fwd = TracerOptions(lanes=args.lanes, mis=not args.no_mis, reverse_share=0.0)
     kw = dict(grid=grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness)
 
     t0 = time.perf_counter()
@@ -127,6 +128,7 @@ def main() -> int:
         "L_star": res.L_star.tolist(),
         "L_star_se": res.L_star_se.tolist(),
         "reverse_share": args.reverse_share,
+        "lanes": args.lanes,
         "bidirectional_rays_per_second": res_bd.rays / res_bd.seconds,
         "bidirectional_L_star": res_bd.L_star.tolist(),
         "bidirectional_L_star_se": res_bd.L_star_se.tolist(),

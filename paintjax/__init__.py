@@ -17,11 +17,11 @@ from ._io import atomic_savefig, atomic_savez, atomic_write_json, to_jsonable
 # the forward pipeline: a paint's inputs → five-angle L*
 from ._pipeline import array_overrides, platelet_brdf, sample_array, simulate
 
-# the paint's gonio BRDF and the car-paint model renderers use (`paintjax.render` draws it in Mitsuba 3)
-from .appearance import CarPaintBRDF, CarPaintFit, GonioTable, car_paint_for_sample, fit_car_paint, gonio_table, load_car_paint
-
 # published reference samples
 from ._samples import Measured, Sample, load_sample, sample_names
+
+# the paint's gonio BRDF and the car-paint model renderers use (`paintjax.render` draws it in Mitsuba 3)
+from .appearance import CarPaintBRDF, CarPaintFit, GonioTable, car_paint_for_sample, fit_car_paint, gonio_table, load_car_paint
 
 # platelet BRDFs
 from .brdf import (

@@ -189,7 +189,7 @@ def fit_car_paint(table: GonioTable, *, lobes: int = MAX_LOBES, coat_index: floa
             u0 = jnp.asarray(1.5 * rng.normal(size=1 + 3 * k))
         sol = solve(u0)
         cost = float(jnp.sum(residual(sol[0], None) ** 2))
-        ok = int(sol[1]) == 0 and np.isfinite(cost)
+        ok = bool(int(sol[1]) == 0 and np.isfinite(cost))
         if best is None or (ok, -cost) > (best[0], -best[1]):
             best = (ok, cost, sol)
     ok, _, (value, code, steps) = best

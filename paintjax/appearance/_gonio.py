@@ -155,6 +155,7 @@ def gonio_table(
     rays: int = DEFAULT_RAYS,
     seed: int = 0,
     brdf: str = "wave",
+    options=None,
     progress: bool = False,
     use_cache: bool = True,
     **paint,
@@ -168,6 +169,7 @@ def gonio_table(
             (0: the specular side), one detector per (polar > 0, azimuth) pair plus the normal.
         rays: rays per incidence; seed: the tracer's seed (each incidence offsets it).
         brdf: platelet BRDF ("wave", "kirchhoff").
+        options: `TracerOptions` (default: forward tracing, `reverse_share=0`; e.g. more `lanes` on a GPU).
         progress: a line per incidence on stderr (its L* SE range and seconds, the time left).
         use_cache: False re-traces without reading or writing the cache.
         **paint: overrides passed to `paintjax.simulate` (shape, scale, sigma, tau, pvc, thickness,
@@ -186,7 +188,10 @@ def gonio_table(
     incidences = _check_angles("incidences_deg", incidences_deg, 0.0, 80.0)
     polar = _check_angles("polar_deg", polar_deg, 0.0, 80.0)
     azimuth = _check_angles("azimuth_deg", azimuth_deg, 0.0, 180.0)
-    options = TracerOptions(reverse_share=0.0)
+    given = options is not None
+    if given and not isinstance(options, TracerOptions):
+        raise ValueError(f"options must be a TracerOptions, got {type(options).__name__}")
+    options = options if given else TracerOptions(reverse_share=0.0)
     check_ray_count(rays, options)
     _seed_state(seed)
     allowed = {"shape", "scale", "sigma", "tau", "pvc", "thickness", "d50", "platelet_thickness", "primer_albedo", "waviness"}
@@ -197,6 +202,8 @@ def gonio_table(
     description = {"sample": sample, "brdf": brdf, **{k: v for k, v in paint.items() if v is not None}}
     inputs = {"version": GONIO_VERSION, "table_version": TABLE_VERSION, "tracer_version": TRACER_FORWARD_VERSION, "paint": description, "incidences": incidences,
               "polar": polar, "azimuth": azimuth, "rays": int(rays), "seed": int(seed)}
+    if given:  # the default's key stays that of the shipped tables
+        inputs["options"] = repr(options)
     seconds = [0.0]
 
     def build():

@@ -6,7 +6,7 @@ optionally combined over wavelengths as the instrument does; and a deterministic
 reference of one tile to check it against.
 """
 
-from ._options import LEDGER_KEYS, MAX_CREATED_ENERGY, EnergyCreationError, TracerOptions
+from ._options import DEFAULT_LANES, LEDGER_KEYS, MAX_CREATED_ENERGY, EnergyCreationError, TracerOptions, default_lanes
 from ._plain import plain_trace_seconds
 from ._result import TraceResult
 from ._scene import build_scene
@@ -15,6 +15,8 @@ from ._tile_single_scatter import tile_mirror_single_scatter
 from ._trace import check_ray_count, lightness_with_se, trace
 
 __all__ = [
+    "DEFAULT_LANES",
+    "default_lanes",
     "LEDGER_KEYS",
     "MAX_CREATED_ENERGY",
     "EnergyCreationError",
