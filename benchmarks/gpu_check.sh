@@ -13,13 +13,7 @@
 # an H200 on 2026-12-04 the tracer step took about 70 s, and the BRDF table more than 100 s with its
 # compilation). On the 2-core CPU (JAX_PLATFORMS=cpu) the steps run into their limits; that is
 # expected there. Results of that H200 run: BENCHMARKS.md and benchmarks/output/tracer_gpu.json.
-set -uo pipefail
-cd "$(dirname "$0")/.."
-OUT="${OUT:-/tmp/paintjax_gpu}"
-mkdir -p "$OUT"
-export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 PAINTJAX_CACHE="${PAINTJAX_CACHE:-/tmp/paintjax_cache}"
-export JAX_PLATFORMS="${JAX_PLATFORMS:-cuda}"
-PY="${PYTHON:-python3}"
+source "$(dirname "$0")/gpu_env.sh"
 
 "$PY" - <<'EOF' 2>&1 | tee "$OUT/devices.txt"
 import jax, platform

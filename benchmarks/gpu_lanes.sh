@@ -7,13 +7,7 @@
 #     PAINTJAX_CACHE=.devcache bash benchmarks/gpu_lanes.sh   (results under $OUT, or /tmp/paintjax_gpu)
 # It needs no install (as benchmarks/gpu_check.sh). Each step has its own time limit so the whole
 # check ends within about 7 minutes.
-set -uo pipefail
-cd "$(dirname "$0")/.."
-OUT="${OUT:-/tmp/paintjax_gpu}"
-mkdir -p "$OUT"
-export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 PAINTJAX_CACHE="${PAINTJAX_CACHE:-/tmp/paintjax_cache}"
-export JAX_PLATFORMS="${JAX_PLATFORMS:-cuda}"
-PY="${PYTHON:-python3}"
+source "$(dirname "$0")/gpu_env.sh"
 nvidia-smi --query-gpu=name,memory.total --format=csv,noheader | tee "$OUT/devices.txt"
 
 for LANES in 2048 16384 65536; do
