@@ -110,7 +110,7 @@ def test_fit_recovers_a_known_model_to_the_noise(tmp_path):
     truth = CarPaintBRDF(diffuse=jnp.asarray(0.08), lobe_weight=jnp.asarray([0.4, 0.1]), lobe_roughness=jnp.asarray([0.07, 0.25]),
                          lobe_f0=jnp.asarray([0.9, 0.6]), coat_index=1.5)
     table = _synthetic_table(truth, noise_L=0.2)
-    fit = fit_car_paint(table, lobes=2)
+    fit = fit_car_paint(table, lobes=2, color_table=None)
     assert fit.converged
     assert fit.rms_all < 0.25 and fit.rms_ma98 < 0.3  # the noise is 0.2
     assert np.allclose(np.asarray(fit.model.lobe_roughness), [0.07, 0.25], rtol=0.05)
@@ -134,7 +134,7 @@ def test_a_model_the_fit_cannot_follow_is_named(tmp_path):
     """Two lobes fitted with one: the fit reports the entries it misses, by how much."""
     truth = CarPaintBRDF(diffuse=jnp.asarray(0.02), lobe_weight=jnp.asarray([0.5, 0.3]), lobe_roughness=jnp.asarray([0.03, 0.6]),
                          lobe_f0=jnp.asarray([1.0, 1.0]), coat_index=1.5)
-    fit = fit_car_paint(_synthetic_table(truth, noise_L=0.1), lobes=1)
+    fit = fit_car_paint(_synthetic_table(truth, noise_L=0.1), lobes=1, color_table=None)
     worst = fit.worst
     assert worst and abs(worst[0]["delta_L"]) > 1.0 and "cannot follow" in fit.summary()
 
@@ -217,12 +217,14 @@ def test_dataclass_table_is_frozen(small_table):
         small_table.rays = 3
 
 
-def test_gonio_command_writes_table_model_and_plot(tmp_path, capsys):
+def test_gonio_command_writes_table_model_and_plot(small_table, tmp_path, capsys):
     """`paintjax gonio` as a user runs it (Kirchhoff platelets, two incidences, few rays)."""
     from paintjax.cli._main import main
 
     out = tmp_path / "gonio"
-    rc = main(["gonio", "--brdf", "kirchhoff", "--incidences", "15,45", "--rays", "8192", "--lobes", "2", "--out", str(out), "--json"])
+    # the `small_table` fixture's settings: its table comes from the cache, so only the fit runs here
+    rc = main(["gonio", "--brdf", "kirchhoff", "--incidences", "15,30,45", "--polar", "0,15,30,45", "--azimuth", "0,90,180",
+               "--rays", "24576", "--seed", "3", "--lobes", "2", "--out", str(out), "--json"])
     doc = json.loads(capsys.readouterr().out)
     assert rc == (0 if doc["fit"]["converged"] else 1) and doc["exported"] == doc["fit"]["converged"]
     assert len(doc["fit"]["ma98"]) == 19 and len(doc["lobes"]) == 2
@@ -233,3 +235,26 @@ def test_gonio_command_writes_table_model_and_plot(tmp_path, capsys):
         assert saved["fit"]["rms_delta_L_ma98"] == pytest.approx(doc["fit"]["rms_delta_L_ma98"])
     assert main(["gonio", "--lobes", "4", "--out", str(out)]) == 2
     assert "--lobes" in capsys.readouterr().err
+    assert main(["gonio", "--color-table", "6by6", "--out", str(out)]) == 2
+    assert "--color-table" in capsys.readouterr().err
+
+
+def test_color_table_fit_recovers_a_model_with_a_table(tmp_path):
+    """A model whose BRDF is multiplied by a smooth χ(θh, θd): fitted without a table it misses, with one it
+    follows to the noise; the table travels through the JSON file, and a version-1 file (no table) still loads."""
+    chi = np.exp(0.3 * np.cos(np.linspace(0.0, 2.0, 4))[:, None] * np.linspace(1.0, -1.0, 4)[None, :])
+    truth = CarPaintBRDF(diffuse=jnp.asarray(0.06), lobe_weight=jnp.asarray([0.4, 0.1]), lobe_roughness=jnp.asarray([0.07, 0.25]),
+                         lobe_f0=jnp.asarray([0.9, 0.6]), coat_index=1.5, color_table=jnp.asarray(chi))
+    table = _synthetic_table(truth, noise_L=0.1)
+    plain = fit_car_paint(table, lobes=2, color_table=None)
+    with_table = fit_car_paint(table, lobes=2, color_table=(4, 4), smoothness=0.3)
+    assert with_table.converged and with_table.rms_all < 0.2 < plain.rms_all
+    model, doc = load_car_paint(with_table.save(tmp_path / "t.json"))
+    assert doc["version"] == 2 and len(doc["color_table"]["values"]) == 4
+    assert np.allclose(np.asarray(model.evaluate(table.wi, table.wo)), np.asarray(with_table.model.evaluate(table.wi, table.wo)))
+    v1 = CarPaintBRDF(**SILVER).to_dict() | {"version": 1}
+    del v1["color_table"]
+    (tmp_path / "v1.json").write_text(json.dumps(v1))
+    assert load_car_paint(tmp_path / "v1.json")[0].color_table is None
+    with pytest.raises(ValueError, match="color_table"):
+        CarPaintBRDF(**SILVER, color_table=jnp.asarray([[1.0, -1.0], [1.0, 1.0]]))

@@ -38,11 +38,12 @@ def silver(**change) -> CarPaintBRDF:
     return CarPaintBRDF(**{k: jnp.asarray(v) for k, v in p.items()}, coat_index=1.5)
 
 
-def random_model(rng) -> CarPaintBRDF:
+def random_model(rng, color_table: bool = False) -> CarPaintBRDF:
     k = int(rng.integers(1, 4))
+    table = jnp.asarray(np.exp(rng.normal(0.0, 0.5, (int(rng.integers(2, 7)), int(rng.integers(2, 7)))))) if color_table else None
     return CarPaintBRDF(diffuse=jnp.asarray(rng.uniform(0.0, 0.3)), lobe_weight=jnp.asarray(rng.uniform(0.0, 1.0, k)),
                         lobe_roughness=jnp.asarray(np.exp(rng.uniform(np.log(0.03), np.log(1.0), k))),
-                        lobe_f0=jnp.asarray(rng.uniform(0.0, 1.0, k)), coat_index=float(rng.uniform(1.3, 2.0)))
+                        lobe_f0=jnp.asarray(rng.uniform(0.0, 1.0, k)), coat_index=float(rng.uniform(1.3, 2.0)), color_table=table)
 
 
 def hemisphere(rng, n) -> np.ndarray:
@@ -87,7 +88,7 @@ def eval_pdf(mi, bsdf, wi, wo):
 def test_eval_equals_the_model(jit_mi, seed):
     mi = jit_mi
     rng = np.random.default_rng(seed)
-    model = random_model(rng)
+    model = random_model(rng, color_table=seed % 2 == 1)  # odd seeds with a colour table
     bsdf = mi.load_dict(bsdf_dict(model))
     wi, wo = hemisphere(rng, 2000), hemisphere(rng, 2000)
     value, _ = eval_pdf(mi, bsdf, wi, wo)

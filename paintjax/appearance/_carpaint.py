@@ -16,8 +16,11 @@ single scatter through a smooth coat). The clearcoat's own mirror reflection R(�
 term (`coat_reflectance`); `evaluate` leaves it out, as a multi-angle instrument does.
 
 The model is the form of the automotive car-paint BRDFs (Rump et al. 2008; the AxF "CPA2"
-model) without their flake texture and colour table: paintjax paints are achromatic, and the
-lobes are fitted to the tracer's five-angle-and-more reflectance (`fit_car_paint`).
+model) without their flake texture: paintjax paints are achromatic, so their BRDF colour table
+χ(θ_h, θ_d) is a table of lightness multipliers (optional, `color_table`): f_base is multiplied by χ,
+interpolated bilinearly between nodes uniform in θ_h (half vector from the normal) and θ_d (between
+ω_i' and h), both on [0, θ_c] with θ_c = asin(1/n) the largest angle inside the coat. The lobes (and
+the table) are fitted to the tracer's reflectance over the hemisphere (`fit_car_paint`).
 """
 
 from __future__ import annotations
@@ -39,7 +42,9 @@ MAX_LOBES = 3
 ROUGHNESS_RANGE = (1e-3, 1.5)
 #: JSON format tag of an exported model.
 JSON_FORMAT = "paintjax-car-paint-brdf"
-JSON_VERSION = 1
+JSON_VERSION = 2  # 2: the optional colour table (version 1 files, without it, still load)
+#: Most nodes per axis of the colour table.
+MAX_TABLE_NODES = 16
 
 
 def _beckmann(cos_h, alpha):
@@ -57,6 +62,7 @@ class CarPaintBRDF(eqx.Module):
         lobe_roughness: Beckmann α_k in `ROUGHNESS_RANGE`.
         lobe_f0: Schlick F0_k in [0, 1].
         coat_index: clearcoat index n in (1, 3].
+        color_table: χ at (nh, nd) nodes (2 to `MAX_TABLE_NODES` each), finite and > 0; None: χ = 1.
     """
 
     diffuse: Float[Array, ""]
@@ -64,6 +70,7 @@ class CarPaintBRDF(eqx.Module):
     lobe_roughness: Float[Array, " k"]
     lobe_f0: Float[Array, " k"]
     coat_index: float = eqx.field(static=True, default=1.5)
+    color_table: Float[Array, "nh nd"] | None = None
 
     def __check_init__(self):
         try:
@@ -86,10 +93,37 @@ class CarPaintBRDF(eqx.Module):
             raise ValueError(f"lobe_f0 must lie in [0, 1], got {f0.tolist()}")
         if not (1.0 < float(self.coat_index) <= 3.0):
             raise ValueError(f"coat_index must lie in (1, 3], got {self.coat_index!r}")
+        if self.color_table is not None:
+            chi = np.asarray(self.color_table, dtype=float)
+            if chi.ndim != 2 or not all(2 <= d <= MAX_TABLE_NODES for d in chi.shape):
+                raise ValueError(f"color_table must be 2-D with 2 to {MAX_TABLE_NODES} nodes per axis, got shape {chi.shape}")
+            if np.any(~np.isfinite(chi)) or np.any(chi <= 0):
+                raise ValueError("color_table must hold finite values > 0")
 
     @property
     def num_lobes(self) -> int:
         return int(np.shape(self.lobe_weight)[0])
+
+    @property
+    def table_max_deg(self) -> float:
+        """θ_c = asin(1/n): the colour table's nodes span [0, θ_c] on both axes."""
+        return float(np.degrees(np.arcsin(1.0 / float(self.coat_index))))
+
+    def color(self, wi_coat: Float[Array, "... 3"], wo_coat: Float[Array, "... 3"]) -> Float[Array, "..."]:
+        """χ(θ_h, θ_d) of refracted directions, bilinear between the table's nodes (1 without a table); the
+        angles by atan2 of sine and cosine (accurate near 0 in float32 too)."""
+        if self.color_table is None:
+            return jnp.ones(wi_coat.shape[:-1])
+        nh, nd = self.color_table.shape
+        scale = 1.0 / np.radians(self.table_max_deg)
+        h = wi_coat + wo_coat
+        theta_h = jnp.arctan2(jnp.linalg.norm(h[..., :2], axis=-1), h[..., 2])
+        theta_d = jnp.arctan2(jnp.linalg.norm(jnp.cross(wi_coat, h), axis=-1), jnp.sum(wi_coat * h, axis=-1))
+        u = jnp.clip(theta_h * scale * (nh - 1), 0.0, nh - 1)
+        v = jnp.clip(theta_d * scale * (nd - 1), 0.0, nd - 1)
+        wu = jnp.maximum(0.0, 1.0 - jnp.abs(u[..., None] - jnp.arange(nh)))
+        wv = jnp.maximum(0.0, 1.0 - jnp.abs(v[..., None] - jnp.arange(nd)))
+        return jnp.einsum("...i,ij,...j->...", wu, self.color_table, wv)
 
     def base(self, wi_coat: Float[Array, "... 3"], wo_coat: Float[Array, "... 3"]) -> Float[Array, "..."]:
         """f_base under the coat [1/sr] for refracted directions (both away from the surface)."""
@@ -102,7 +136,7 @@ class CarPaintBRDF(eqx.Module):
         D = _beckmann(ch[..., None], self.lobe_roughness)
         F = self.lobe_f0 + (1.0 - self.lobe_f0) * (1.0 - ih[..., None]) ** 5
         spec = jnp.sum(self.lobe_weight * D * F, axis=-1) * G / (4.0 * ci * co)
-        return self.diffuse / jnp.pi + spec
+        return self.color(wi_coat, wo_coat) * (self.diffuse / jnp.pi + spec)
 
     def evaluate(self, wi: Float[ArrayLike, "... 3"], wo: Float[ArrayLike, "... 3"]) -> Float[Array, "..."]:
         """BRDF in air [1/sr] without the clearcoat's delta reflection; 0 below the horizon."""
@@ -136,6 +170,10 @@ class CarPaintBRDF(eqx.Module):
             "diffuse": float(self.diffuse),
             "lobes": [{"weight": float(s), "roughness": float(a), "f0": float(f)}
                       for s, a, f in zip(np.asarray(self.lobe_weight), np.asarray(self.lobe_roughness), np.asarray(self.lobe_f0))],
+            "color_table": None if self.color_table is None else {
+                "theta_h_deg": np.linspace(0.0, self.table_max_deg, self.color_table.shape[0]).tolist(),
+                "theta_d_deg": np.linspace(0.0, self.table_max_deg, self.color_table.shape[1]).tolist(),
+                "values": np.asarray(self.color_table, dtype=float).tolist()},
         }
 
     @classmethod
@@ -143,19 +181,24 @@ class CarPaintBRDF(eqx.Module):
         """Inverse of `to_dict` (validated: a clear ValueError names what is wrong)."""
         if not isinstance(d, dict) or d.get("format") != JSON_FORMAT:
             raise ValueError(f"not a paintjax car-paint BRDF file (format must be {JSON_FORMAT!r})")
-        if d.get("version") != JSON_VERSION:
-            raise ValueError(f"car-paint BRDF file version {d.get('version')!r} is not supported (expected {JSON_VERSION})")
+        if d.get("version") not in (1, JSON_VERSION):
+            raise ValueError(f"car-paint BRDF file version {d.get('version')!r} is not supported (expected 1 or {JSON_VERSION})")
+        table = d.get("color_table")
+        if table is not None and not (isinstance(table, dict) and "values" in table):
+            raise ValueError("color_table must be null or an object with values (nh × nd χ at nodes uniform on [0, asin(1/n)])")
         lobes = d.get("lobes")
         if not isinstance(lobes, list) or not lobes:
             raise ValueError("lobes must be a non-empty list of {weight, roughness, f0}")
         try:
-            return cls(diffuse=jnp.asarray(float(d["diffuse"])),
-                       lobe_weight=jnp.asarray([float(lb["weight"]) for lb in lobes]),
-                       lobe_roughness=jnp.asarray([float(lb["roughness"]) for lb in lobes]),
-                       lobe_f0=jnp.asarray([float(lb["f0"]) for lb in lobes]),
-                       coat_index=float(d["coat_index"]))
-        except (KeyError, TypeError) as err:
+            values = dict(diffuse=jnp.asarray(float(d["diffuse"])),
+                          lobe_weight=jnp.asarray([float(lb["weight"]) for lb in lobes]),
+                          lobe_roughness=jnp.asarray([float(lb["roughness"]) for lb in lobes]),
+                          lobe_f0=jnp.asarray([float(lb["f0"]) for lb in lobes]),
+                          coat_index=float(d["coat_index"]),
+                          color_table=None if table is None else jnp.asarray(np.asarray(table["values"], dtype=float)))
+        except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"car-paint BRDF file is missing or mistypes {err}") from None
+        return cls(**values)  # checks the values (a ValueError names the parameter)
 
 
 def load_car_paint(path: str | os.PathLike) -> tuple[CarPaintBRDF, dict]:

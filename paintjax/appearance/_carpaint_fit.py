@@ -3,9 +3,10 @@
 The residual of entry j is the lightness difference ΔL*_j = L*(π f_model) − L*_j (for an achromatic
 paint ΔL* is the CIELAB ΔE), divided by √(1 + (SE_j / 0.5)²): entries the tracer resolved to
 better than half a unit count fully, noisy ones less. Parameters are mapped to ℝ (softplus for
-the diffuse albedo and lobe weights, logistic maps for roughness and F0) and fitted by
-Levenberg–Marquardt from several starts (three by default); the best converged start wins. The report gives ΔL*
-over all MA98 geometries (the goal: RMS ≤ 1) and names the entries the model cannot follow.
+the diffuse albedo and lobe weights, logistic maps for roughness and F0, log χ for the colour
+table, whose smoothness and size are penalised) and fitted by Levenberg–Marquardt from several
+starts (three by default); the best converged start wins. The report gives ΔL* over all MA98
+geometries (the goal: RMS ≤ 1) and names the entries the model cannot follow.
 """
 
 from __future__ import annotations
@@ -20,29 +21,41 @@ import optimistix as optx
 
 from .._optx import result_message
 from ..instrument._lightness import lightness
-from ._carpaint import MAX_LOBES, CarPaintBRDF
+from ._carpaint import MAX_LOBES, MAX_TABLE_NODES, CarPaintBRDF
 from ._gonio import GonioTable
 
 #: SE [L*] at which an entry's weight falls to 1/√2.
 SE_SCALE = 0.5
 #: Fitted roughness range (inside the model's accepted range).
 FIT_ROUGHNESS = (0.01, 1.0)
+#: The colour table's default nodes in θ_h × θ_d, and the weight of its smoothness and size penalties:
+#: chosen among 6 × 6 and 8 × 8 nodes and weights 1 and 3 on Silver #1 and #2 (the MA98 RMS moved by
+#: < 0.05 between them; docs/appearance.md).
+DEFAULT_TABLE = (6, 6)
+SMOOTHNESS = 3.0
+#: Levenberg–Marquardt tolerances (relative and absolute, on the parameters and the cost).
+FIT_TOL = 1e-8
+#: With a colour table, the joint fit runs in chunks of this many steps and stops when the cost changes
+#: by at most `STATIONARY` (relative) over one.
+POLISH_CHUNK = 100
+STATIONARY = 1e-5
 #: Goal for the RMS ΔL* over the MA98 geometries.
 RMS_GOAL = 1.0
 # starting roughnesses (narrow → broad) and weights per lobe count
 _STARTS = ((0.05, 0.15, 0.45), (0.1, 0.3, 0.8), (0.03, 0.08, 0.25))
 
 
-def _unpack(u, k: int, n: float) -> CarPaintBRDF:
+def _unpack(u, k: int, n: float, table: tuple[int, int] | None = None) -> CarPaintBRDF:
     lo, hi = FIT_ROUGHNESS
+    chi = None if table is None else jnp.exp(u[1 + 3 * k:].reshape(table))  # the table as log χ
     return CarPaintBRDF(diffuse=jax.nn.softplus(u[0]), lobe_weight=jax.nn.softplus(u[1:1 + k]),
                         lobe_roughness=lo + (hi - lo) * jax.nn.sigmoid(u[1 + k:1 + 2 * k]),
-                        lobe_f0=jax.nn.sigmoid(u[1 + 2 * k:1 + 3 * k]), coat_index=n)
+                        lobe_f0=jax.nn.sigmoid(u[1 + 2 * k:1 + 3 * k]), coat_index=n, color_table=chi)
 
 
 def _pack(diffuse, weights, roughness, f0) -> np.ndarray:
     lo, hi = FIT_ROUGHNESS
-    inv_softplus = lambda x: np.log(np.expm1(np.asarray(x, dtype=float)))  # noqa: E731
+    inv_softplus = lambda x: np.asarray(x, dtype=float) + np.log(-np.expm1(-np.asarray(x, dtype=float)))  # noqa: E731 (stable for large x)
     logit = lambda p: np.log(p / (1.0 - p))  # noqa: E731
     r = (np.asarray(roughness, dtype=float) - lo) / (hi - lo)
     return np.concatenate([[inv_softplus(diffuse)], inv_softplus(weights), logit(r), logit(np.asarray(f0, dtype=float))])
@@ -139,15 +152,18 @@ class CarPaintFit:
         return atomic_write_json(path, self.to_dict())
 
 
-def fit_car_paint(table: GonioTable, *, lobes: int = MAX_LOBES, coat_index: float = 1.5, max_steps: int = 2000, starts: int = 3,
-                  seed: int = 0) -> CarPaintFit:
+def fit_car_paint(table: GonioTable, *, lobes: int = MAX_LOBES, coat_index: float = 1.5, color_table: tuple[int, int] | None = DEFAULT_TABLE,
+                  smoothness: float = SMOOTHNESS, max_steps: int = 2000, starts: int = 3, seed: int = 0) -> CarPaintFit:
     """Fit a `CarPaintBRDF` with `lobes` lobes to a gonio table (module docstring has the residual).
 
     Arguments:
         table: the paint's `GonioTable` (`gonio_table`).
         lobes: 1 to 3 Cook–Torrance lobes.
         coat_index: the clearcoat index (the paint's binder index; not fitted).
-        max_steps: Levenberg–Marquardt steps per start.
+        color_table: nodes (nh, nd) of the colour table χ(θ_h, θ_d) fitted with the lobes (as log χ, with
+            penalty residuals `smoothness` × its second differences along both axes and 0.1 × `smoothness`
+            × log χ, which fixes its scale against the lobe weights); None: no table (χ = 1), the plain form.
+        max_steps: Levenberg–Marquardt steps per start (the joint fit with a table: at most 4×, in chunks).
         starts: Levenberg–Marquardt starts (≥ 1): three fixed ones (narrow to broad lobes, F0 0.9), then
             random ones (unconstrained coordinates ~ N(0, 1.5²), from `seed`); the best converged one wins.
 
@@ -162,56 +178,92 @@ def fit_car_paint(table: GonioTable, *, lobes: int = MAX_LOBES, coat_index: floa
         raise ValueError(f"starts must be an integer >= 1, got {starts!r}")
     if not isinstance(table, GonioTable) or table.reflectance_factor.size < 3 * int(lobes) + 1:
         raise ValueError("table must be a GonioTable with more entries than the model has parameters")
-    k, n = int(lobes), float(coat_index)
+    if color_table is not None:
+        color_table = tuple(int(v) for v in color_table)
+        if len(color_table) != 2 or not all(2 <= v <= MAX_TABLE_NODES for v in color_table):
+            raise ValueError(f"color_table must be two node counts in [2, {MAX_TABLE_NODES}] or None, got {color_table!r}")
+    if not (np.isfinite(smoothness) and smoothness > 0):
+        raise ValueError(f"smoothness must be a finite number > 0, got {smoothness!r}")
+    k, n, shape = int(lobes), float(coat_index), color_table
+    extra = 0 if shape is None else shape[0] * shape[1]
     t0 = time.perf_counter()
     wi, wo = jnp.asarray(table.wi), jnp.asarray(table.wo)
     L, se = table.lightness()
     target = jnp.asarray(L)
     weight = jnp.asarray(1.0 / np.sqrt(1.0 + (se / SE_SCALE) ** 2))
 
-    def residual(u, _):
-        model = _unpack(u, k, n)
-        return (lightness(100.0 * model.reflectance_factor(wi, wo)) - target) * weight
+    def residual(u, shape):
+        model = _unpack(u, k, n, shape)
+        data = (lightness(100.0 * model.reflectance_factor(wi, wo)) - target) * weight
+        if shape is None:
+            return data
+        g = u[1 + 3 * k:].reshape(shape)
+        penalty = [jnp.ravel(g[2:] - 2 * g[1:-1] + g[:-2]), jnp.ravel(g[:, 2:] - 2 * g[:, 1:-1] + g[:, :-2]), 0.1 * jnp.ravel(g)]
+        return jnp.concatenate([data, smoothness * jnp.concatenate(penalty)])
 
-    solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)
+    solver = optx.LevenbergMarquardt(rtol=FIT_TOL, atol=FIT_TOL)
 
-    @jax.jit
-    def solve(u):
-        sol = optx.least_squares(residual, solver, u, None, max_steps=max_steps, throw=False)
-        return sol.value, sol.result._value, sol.stats["num_steps"]
+    def lm(fn, steps: int):
+        @jax.jit
+        def solve(u):
+            sol = optx.least_squares(fn, solver, u, None, max_steps=steps, throw=False)
+            return sol.value, sol.result._value, sol.stats["num_steps"], jnp.sum(fn(sol.value, None) ** 2)
 
+        return solve
+
+    # 1. the lobes alone, from several starts
+    solve = lm(lambda u, _: residual(u, None), max_steps)
     best = None
     rng = np.random.default_rng(seed)
     for j in range(int(starts)):
         if j < len(_STARTS):
-            u0 = jnp.asarray(_pack(0.02, 0.5 * np.geomspace(1.0, 0.1, k), _STARTS[j][:k], np.full(k, 0.9)))
+            u0 = _pack(0.02, 0.5 * np.geomspace(1.0, 0.1, k), _STARTS[j][:k], np.full(k, 0.9))
         else:
-            u0 = jnp.asarray(1.5 * rng.normal(size=1 + 3 * k))
-        sol = solve(u0)
-        cost = float(jnp.sum(residual(sol[0], None) ** 2))
-        ok = bool(int(sol[1]) == 0 and np.isfinite(cost))
-        if best is None or (ok, -cost) > (best[0], -best[1]):
-            best = (ok, cost, sol)
+            u0 = 1.5 * rng.normal(size=1 + 3 * k)
+        value, code, steps, cost = solve(jnp.asarray(u0))
+        ok = bool(int(code) == 0 and np.isfinite(float(cost)))
+        if best is None or (ok, -float(cost)) > (best[0], -best[1]):
+            best = (ok, float(cost), (value, int(code), int(steps)))
+    note = None
+    if shape is not None and best[0]:
+        # 2. the table alone with those lobes (a few steps), 3. everything together from there, in chunks: it
+        # stops when LM converges or when the cost is stationary over a chunk (the degenerate lobe parameters,
+        # F0 at 0 or 1 and roughness at its bound, then drift along flat directions without changing the fit)
+        lobe_u, _, steps = best[2]
+        g, _, more, _ = lm(lambda g, _: residual(jnp.concatenate([lobe_u, g]), shape), max_steps)(jnp.zeros(extra))
+        polish = lm(lambda u, _: residual(u, shape), POLISH_CHUNK)
+        value, steps, previous, stationary = jnp.concatenate([lobe_u, g]), steps + int(more), None, False
+        while steps < 4 * max_steps:
+            value, code, more, cost = polish(value)
+            steps, cost = steps + int(more), float(cost)
+            if int(code) == 0 or not np.isfinite(cost):
+                break
+            if previous is not None and previous - cost <= STATIONARY * previous:
+                stationary = True
+                break
+            previous = cost
+        best = (bool(np.isfinite(cost) and (int(code) == 0 or stationary)), cost, (value, 0 if stationary else int(code), steps))
+        if stationary:
+            note = f"cost stationary (relative change ≤ {STATIONARY:g} over {POLISH_CHUNK} steps)"
     ok, _, (value, code, steps) = best
-    model = _unpack(value, k, n)
-    model = CarPaintBRDF(diffuse=jnp.asarray(float(model.diffuse)), lobe_weight=jnp.asarray(np.asarray(model.lobe_weight)),
-                         lobe_roughness=jnp.asarray(np.asarray(model.lobe_roughness)), lobe_f0=jnp.asarray(np.asarray(model.lobe_f0)),
-                         coat_index=n)
-    order = np.argsort(np.asarray(model.lobe_roughness))  # lobes narrow → broad
-    model = CarPaintBRDF(diffuse=model.diffuse, lobe_weight=model.lobe_weight[order], lobe_roughness=model.lobe_roughness[order],
-                         lobe_f0=model.lobe_f0[order], coat_index=n)
+    with_table = shape if value.size > 1 + 3 * k else None  # an unconverged first stage never reached the table
+    fitted = jax.tree_util.tree_map(lambda x: jnp.asarray(np.asarray(x)), _unpack(value, k, n, with_table))  # concrete arrays
+    order = np.argsort(np.asarray(fitted.lobe_roughness))  # lobes narrow → broad
+    model = CarPaintBRDF(diffuse=fitted.diffuse, lobe_weight=fitted.lobe_weight[order], lobe_roughness=fitted.lobe_roughness[order],
+                         lobe_f0=fitted.lobe_f0[order], coat_index=n, color_table=fitted.color_table)
     resid = np.asarray(lightness(100.0 * model.reflectance_factor(wi, wo))) - L
-    message = result_message(int(code))
+    message = note if (ok and note) else result_message(int(code))
     return CarPaintFit(model=model, table=table, residual_L=resid, converged=ok, message=message,
                        steps=int(steps), seconds=time.perf_counter() - t0)
 
 
-def car_paint_for_sample(sample: str = "silver1", *, lobes: int = MAX_LOBES, progress: bool = False, **table_options) -> CarPaintFit:
+def car_paint_for_sample(sample: str = "silver1", *, lobes: int = MAX_LOBES, color_table: tuple[int, int] | None = DEFAULT_TABLE,
+                         progress: bool = False, **table_options) -> CarPaintFit:
     """The car-paint fit of a reference sample's simulated paint: `gonio_table` (cached; shipped for
     silver1 and silver2 at the defaults) and `fit_car_paint` with the sample's clearcoat index.
 
     Arguments:
-        sample: "silver1" or "silver2"; lobes: 1 to 3.
+        sample: "silver1" or "silver2"; lobes: 1 to 3; color_table: as for `fit_car_paint`.
         progress: a line per traced incidence when the table is not cached.
         **table_options: passed to `gonio_table` (rays, seed, brdf, paint overrides).
     """
@@ -219,4 +271,5 @@ def car_paint_for_sample(sample: str = "silver1", *, lobes: int = MAX_LOBES, pro
     from ._gonio import gonio_table
 
     s = load_sample(sample)
-    return fit_car_paint(gonio_table(s.name, progress=progress, **table_options), lobes=lobes, coat_index=s.binder_index)
+    return fit_car_paint(gonio_table(s.name, progress=progress, **table_options), lobes=lobes, coat_index=s.binder_index,
+                         color_table=color_table)

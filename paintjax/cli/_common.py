@@ -50,6 +50,27 @@ def add_json_argument(parser) -> None:
     parser.add_argument("--json", action="store_true", help="print machine-readable JSON to stdout instead of a table")
 
 
+def parse_color_table(text: str):
+    """`--color-table NHxND` as (nh, nd), or None for "none"; a ValueError naming the flag otherwise."""
+    from ..appearance._carpaint import MAX_TABLE_NODES
+
+    if str(text).lower() == "none":
+        return None
+    try:
+        nodes = tuple(int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        nodes = ()
+    if len(nodes) != 2 or not all(2 <= v <= MAX_TABLE_NODES for v in nodes):
+        raise ValueError(f"--color-table must be NHxND with 2 to {MAX_TABLE_NODES} nodes each, e.g. 6x6, got {text!r}")
+    return nodes
+
+
+def add_color_table_argument(parser) -> None:
+    parser.add_argument("--color-table", default="6x6", help="nodes NHxND of the colour table χ(θh, θd) fitted with the lobes (default "
+                        "6x6: ΔL* RMS 0.93 and 0.86 at the MA98 geometries for the two silvers, 1.84 and 1.58 without); none: the "
+                        "plain diffuse + lobes form")
+
+
 def add_paint_arguments(parser) -> None:
     """`--sample` and the tilt-law and roughness overrides (`--shape`, `--scale`, `--sigma`, `--tau`) of a simulated paint."""
     parser.add_argument("--sample", default="silver1", help="reference sample: silver1 or silver2 (default silver1)")

@@ -4,8 +4,17 @@ from __future__ import annotations
 
 from .._cache import enable_compilation_cache
 from ..appearance._carpaint import MAX_LOBES
-from ..appearance._gonio import DEFAULT_INCIDENCES, DEFAULT_RAYS
-from ._common import add_array_arguments, add_json_argument, add_output_argument, add_paint_arguments, parse_distinct, print_json
+from ..appearance._gonio import DEFAULT_AZIMUTH, DEFAULT_INCIDENCES, DEFAULT_POLAR, DEFAULT_RAYS
+from ._common import (
+    add_array_arguments,
+    add_color_table_argument,
+    add_json_argument,
+    add_output_argument,
+    add_paint_arguments,
+    parse_color_table,
+    parse_distinct,
+    print_json,
+)
 
 
 def register(sub) -> None:
@@ -23,6 +32,11 @@ def register(sub) -> None:
     p.add_argument("--lobes", type=int, default=MAX_LOBES, help=f"Cook–Torrance lobes, 1 to {MAX_LOBES} (default {MAX_LOBES})")
     p.add_argument("--incidences", help="comma-separated illumination polar angles [deg] in [0, 80]; default "
                    + ",".join(f"{v:g}" for v in DEFAULT_INCIDENCES))
+    p.add_argument("--polar", help="comma-separated outgoing polar angles [deg] in [0, 80]; default "
+                   + ",".join(f"{v:g}" for v in DEFAULT_POLAR))
+    p.add_argument("--azimuth", help="comma-separated outgoing azimuths [deg] in [0, 180] (0: the specular side); default "
+                   + ",".join(f"{v:g}" for v in DEFAULT_AZIMUTH))
+    add_color_table_argument(p)
     p.add_argument("--rays", type=int, default=DEFAULT_RAYS, help=f"rays per incidence (default {DEFAULT_RAYS})")
     p.add_argument("--seed", type=int, default=0, help="tracer seed (default 0)")
     add_output_argument(p, "results/gonio")
@@ -37,13 +51,15 @@ def run(args) -> int:
     enable_compilation_cache()
     s = load_sample(args.sample)
     table_options = {"rays": args.rays, "seed": args.seed, "brdf": args.brdf}
-    if args.incidences is not None:
-        table_options["incidences_deg"] = parse_distinct(args.incidences, "--incidences")
+    for flag, key in (("incidences", "incidences_deg"), ("polar", "polar_deg"), ("azimuth", "azimuth_deg")):
+        if getattr(args, flag) is not None:
+            table_options[key] = parse_distinct(getattr(args, flag), f"--{flag}")
+    color_table = parse_color_table(args.color_table)
     paint = {k: getattr(args, k) for k in ("shape", "scale", "sigma", "tau", "pvc", "d50", "platelet_thickness") if getattr(args, k) is not None}
     if not (1 <= args.lobes <= MAX_LOBES):
         raise ValueError(f"--lobes must be an integer in [1, {MAX_LOBES}], got {args.lobes}")
     table = gonio_table(s.name, progress=True, **table_options, **paint)
-    fit = fit_car_paint(table, lobes=args.lobes, coat_index=s.binder_index)
+    fit = fit_car_paint(table, lobes=args.lobes, coat_index=s.binder_index, color_table=color_table)
     csv = table.save_csv(f"{args.out}/{s.name}_gonio.csv")
     png = plot_car_paint_fit(fit, f"{args.out}/{s.name}_car_paint.png")
     model = f"{args.out}/{s.name}_car_paint.json"

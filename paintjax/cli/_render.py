@@ -6,6 +6,7 @@ import os
 
 from .._cache import enable_compilation_cache
 from .._samples import sample_names
+from ._common import add_color_table_argument, parse_color_table
 
 
 def register(sub) -> None:
@@ -26,15 +27,16 @@ def register(sub) -> None:
     p.add_argument("--variant", help="Mitsuba variant; default: llvm_ad_rgb where Dr.Jit finds LLVM ≥ 17 (e.g. Debian's libllvm19), "
                    "else scalar_rgb (about 60× slower), or $PAINTJAX_MITSUBA_VARIANT")
     p.add_argument("--seed", type=int, default=0, help="render seed (default 0)")
+    add_color_table_argument(p)
     p.set_defaults(func=run)
 
 
-def _model(source: str):
+def _model(source: str, color_table=None):
     """A sample's fitted model (refused unless the fit converged) or an exported JSON file's model, with its label."""
     from ..appearance import car_paint_for_sample, load_car_paint
 
     if source in sample_names():
-        fit = car_paint_for_sample(source, progress=True)
+        fit = car_paint_for_sample(source, color_table=color_table, progress=True)
         if not fit.converged:
             raise ValueError(f"the car-paint fit of {source} did not converge ({fit.message}); nothing to render")
         print(fit.summary().splitlines()[0].replace("car-paint fit", f"{source} car-paint fit"))
@@ -52,6 +54,7 @@ def run(args) -> int:
 
     from ..render import default_variant, render_comparison, render_paint, require_mitsuba
 
+    color_table = parse_color_table(args.color_table)
     variant = args.variant or default_variant()
     require_mitsuba(variant)  # a missing extra or an unknown variant fails before any work
     if variant.startswith("scalar") and args.resolution**2 * args.spp > 2**22:
@@ -60,12 +63,12 @@ def run(args) -> int:
     enable_compilation_cache()
     options = {"resolution": args.resolution, "spp": args.spp, "variant": variant, "seed": args.seed}
     if args.compare:
-        models = dict(_model(source)[::-1] for source in args.compare)
+        models = dict(_model(source, color_table)[::-1] for source in args.compare)
         if len(models) != 2:
             raise ValueError(f"--compare needs two different paints, got {args.compare}")
         result = render_comparison(models, args.image, **options)
     else:
-        model, _ = _model(args.sample or args.model)
+        model, _ = _model(args.sample or args.model, color_table)
         result = render_paint(model, args.image, **options)
     print(f"rendered {args.image} ({args.resolution}×{args.resolution}, {args.spp} spp, {variant}) in {result['seconds']:.1f} s")
     return 0

@@ -3,7 +3,8 @@
 The plugin "paintjax_carpaint" evaluates exactly the formula of `CarPaintBRDF.evaluate` (diffuse +
 Cook–Torrance Beckmann lobes at the directions refracted into a flat clearcoat, × T(θi) T(θo) / n²)
 and adds the clearcoat's mirror reflection R(θi) as a delta component. Properties: `diffuse`,
-`coat_index` and, per lobe k = 0, 1, 2 (contiguous from 0), `weight_k`, `roughness_k`, `f0_k`.
+`coat_index` and, per lobe k = 0, 1, 2 (contiguous from 0), `weight_k`, `roughness_k`, `f0_k`; an
+optional colour table χ as `table_nh`, `table_nd` and `chi_i_j` (the model's `color_table`).
 
 Components: 0 the coat's delta reflection (`DeltaReflection`), 1 the lobes (`GlossyReflection`),
 2 the diffuse term (`DiffuseReflection`); all front-side only (wrap in `twosided` for two faces).
@@ -115,6 +116,10 @@ def bsdf_dict(model) -> dict:
     out = {"type": PLUGIN_NAME, "diffuse": float(d["diffuse"]), "coat_index": float(d["coat_index"])}
     for k, lobe in enumerate(d["lobes"]):
         out |= {f"weight_{k}": float(lobe["weight"]), f"roughness_{k}": float(lobe["roughness"]), f"f0_{k}": float(lobe["f0"])}
+    if d.get("color_table") is not None:
+        chi = d["color_table"]["values"]
+        out |= {"table_nh": len(chi), "table_nd": len(chi[0])}
+        out |= {f"chi_{i}_{j}": float(x) for i, row in enumerate(chi) for j, x in enumerate(row)}
     return out
 
 
@@ -198,6 +203,10 @@ def _make_class(m, mi):
                 k += 1
             if not 1 <= k <= 3:
                 raise ValueError(f"{PLUGIN_NAME}: give 1 to 3 lobes as weight_0, roughness_0, f0_0, …, got {k}")
+            self.table = (int(props.get("table_nh", 0)), int(props.get("table_nd", 0)))  # (0, 0): no colour table
+            for i in range(self.table[0]):
+                for j in range(self.table[1]):
+                    values[f"chi_{i}_{j}"] = float(props.get(f"chi_{i}_{j}", 1.0))
             self.num_lobes = k
             self.values = values
             self._check()
@@ -210,6 +219,8 @@ def _make_class(m, mi):
             v = self.values
             if not (1.0 < v["coat_index"] <= 3.0) or not (v["diffuse"] >= 0.0):
                 raise ValueError(f"{PLUGIN_NAME}: coat_index must lie in (1, 3] and diffuse be >= 0, got {v}")
+            if self.table != (0, 0) and (min(self.table) < 2 or any(not (v[key] > 0.0) for key in v if key.startswith("chi_"))):
+                raise ValueError(f"{PLUGIN_NAME}: a colour table needs table_nh, table_nd >= 2 and every chi_i_j > 0")
             for k in range(self.num_lobes):
                 if not (v[f"weight_{k}"] >= 0.0 and 1e-3 <= v[f"roughness_{k}"] <= 1.5 and 0.0 <= v[f"f0_{k}"] <= 1.0):
                     raise ValueError(f"{PLUGIN_NAME}: lobe {k} needs weight >= 0, roughness in [0.001, 1.5], f0 in [0, 1], got {v}")
@@ -221,6 +232,26 @@ def _make_class(m, mi):
             self.q_py = q
 
         # ---- pieces --------------------------------------------------------------------------------
+        def _color(self, wi_c, wo_c):
+            """χ(θh, θd): bilinear (hat functions) between nodes uniform on [0, asin(1/n)] (as `CarPaintBRDF.color`);
+            the angles by atan2 of sine and cosine, which float32 keeps accurate near 0 (acos does not)."""
+            (nh, nd), p = self.table, self.params
+            scale = 1.0 / math.asin(1.0 / self.values["coat_index"])
+            h = wi_c + wo_c
+            theta_h = dr.atan2(dr.sqrt(h.x * h.x + h.y * h.y), h.z)
+            theta_d = dr.atan2(dr.norm(dr.cross(wi_c, h)), dr.dot(wi_c, h))
+            u = dr.clip(theta_h * (scale * (nh - 1)), 0.0, nh - 1.0)
+            v = dr.clip(theta_d * (scale * (nd - 1)), 0.0, nd - 1.0)
+            wu = [dr.maximum(0.0, 1.0 - dr.abs(u - i)) for i in range(nh)]
+            wv = [dr.maximum(0.0, 1.0 - dr.abs(v - j)) for j in range(nd)]
+            chi = m.Float(0.0)
+            for i in range(nh):
+                row = m.Float(0.0)
+                for j in range(nd):
+                    row = row + p[f"chi_{i}_{j}"] * wv[j]
+                chi = chi + wu[i] * row
+            return chi
+
         def _lobes(self):
             p = self.params
             return [(p[f"weight_{k}"], p[f"roughness_{k}"], p[f"f0_{k}"]) for k in range(self.num_lobes)]
@@ -265,6 +296,8 @@ def _make_class(m, mi):
                 f_base = spec * g / (4.0 * dr.maximum(wi_c.z * wo_c.z, 1e-12))  # guarded: a scalar variant divides in Python
             if has_diffuse:
                 f_base = f_base + p["diffuse"] / math.pi
+            if self.table != (0, 0):
+                f_base = f_base * self._color(wi_c, wo_c)
             value = (1.0 - r_i) * (1.0 - r_o) / (n * n) * f_base * co
             q, on = self._non_delta_q(ctx)
             p_coat = m.Float(0.0)

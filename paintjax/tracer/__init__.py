@@ -7,7 +7,7 @@ reference of one tile to check it against.
 """
 
 from ._options import DEFAULT_LANES, LEDGER_KEYS, MAX_CREATED_ENERGY, EnergyCreationError, TracerOptions, default_lanes
-from ._plain import plain_trace_seconds
+from ._plain import plain_trace_counts, plain_trace_seconds
 from ._result import TraceResult
 from ._scene import build_scene
 from ._spectral import SPECTRAL_NODES_NM, combine_spectral, lab_from_xyz, spectral_node_weights
@@ -22,6 +22,7 @@ __all__ = [
     "EnergyCreationError",
     "TracerOptions",
     "plain_trace_seconds",
+    "plain_trace_counts",
     "TraceResult",
     "build_scene",
     "SPECTRAL_NODES_NM",
