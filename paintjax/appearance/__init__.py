@@ -3,7 +3,8 @@
 In: a paint (a reference sample with overrides, as `paintjax.simulate` takes it). Out: its
 `GonioTable` (the tracer's reflectance factor over incidences 0–80° and outgoing directions in and
 out of the plane, every MA98 geometry included, each with a statistical error) and a fitted
-`CarPaintBRDF` (diffuse + up to three Cook–Torrance lobes under a clearcoat) with its ΔL* report,
+`CarPaintBRDF` (diffuse + up to three Cook–Torrance lobes under a clearcoat, times an AxF-style
+colour table χ(θh, θd)) with its ΔL* report,
 exported as a documented JSON file (docs/appearance.md) that `paintjax.render` draws in Mitsuba 3.
 """
 
