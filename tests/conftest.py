@@ -16,8 +16,10 @@ jax.config.update("jax_enable_x64", True)
 #: runs `-n 2 --dist loadfile --no-loadscope-reorder`, so each worker starts on a long module and the
 #: short ones fill in behind (longest-processing-time-first). xdist's default order (modules by
 #: number of tests) moves with every test added: 854, 925 and 928 s on three runs of nearly the same
-#: suite that day, 853 and 885 s this way. test_platelet_brdf_truth.py (2026-12-03) takes about 4 min.
-LONG_MODULES_FIRST = ("test_tracer.py", "test_tracer_single_scatter.py", "test_commands.py", "test_platelet_brdf_truth.py", "test_panels.py")
+#: suite that day, 853 and 885 s this way. test_platelet_brdf_truth.py (2026-12-03) takes about 4 min,
+#: test_appearance.py (2026-12-04, a traced gonio table) about 2.5 min.
+LONG_MODULES_FIRST = ("test_tracer.py", "test_tracer_single_scatter.py", "test_commands.py", "test_platelet_brdf_truth.py", "test_panels.py",
+                      "test_appearance.py")
 
 
 def pytest_collection_modifyitems(session, config, items):
