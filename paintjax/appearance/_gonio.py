@@ -40,7 +40,7 @@ def _polar_azimuth(v) -> tuple[float, float]:
 
 
 def _aspecular(illumination_deg: float, polar_deg: float, azimuth_deg: float) -> float:
-    """Angle between a detector and the specular direction [deg] (in the plane: signed, + away from it toward the source)."""
+    """Angle between a detector and the specular direction [deg], unsigned (the size of an MA98 name's aspecular angle)."""
     spec = np.asarray(direction(illumination_deg, 0.0))
     d = np.asarray(direction(polar_deg, azimuth_deg))
     return float(np.degrees(np.arccos(np.clip(spec @ d, -1.0, 1.0))))
@@ -204,8 +204,6 @@ def gonio_table(
               "polar": polar, "azimuth": azimuth, "rays": int(rays), "seed": int(seed)}
     if given:  # the default's key stays that of the shipped tables
         inputs["options"] = repr(options)
-    seconds = [0.0]
-
     def build():
         cols = {k: [] for k in _COLUMNS}
         t0 = time.perf_counter()
@@ -225,8 +223,7 @@ def gonio_table(
                 print(f"  gonio {sample}: incidence {theta_i:g}° ({j + 1}/{incidences.size}), {len(dets)} directions, "
                       f"L* SE {se.min():.2f}–{se.max():.2f}, {spent:.0f} s, about {spent / (j + 1) * (incidences.size - j - 1):.0f} s left",
                       file=sys.stderr, flush=True)
-        seconds[0] = time.perf_counter() - t0
-        return {k: np.asarray(v) for k, v in cols.items()} | {"seconds": np.asarray(seconds[0])}
+        return {k: np.asarray(v) for k, v in cols.items()} | {"seconds": np.asarray(time.perf_counter() - t0)}
 
     d, _ = cached_arrays("gonio", inputs, build, use_cache=use_cache)
     return GonioTable(

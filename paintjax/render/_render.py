@@ -125,6 +125,12 @@ def _check_angle(name: str, value, lo: float, hi: float) -> float:
     return v
 
 
+def _check_sizes(resolution, spp, seed) -> tuple[int, int, int]:
+    """resolution in [16, 4096], spp in [1, 65536], seed in [0, 2³² − 1] (ValueError naming the argument)."""
+    return (_check_int("resolution", resolution, 16, 4096), _check_int("spp", spp, 1, 65536),
+            _check_int("seed", seed, 0, (1 << 32) - 1))
+
+
 # ---- rendering in passes -------------------------------------------------------------------------------
 def _pass_seed(seed: int, k: int) -> int:
     return (seed * 1_000_003 + k) % (1 << 32)
@@ -222,9 +228,7 @@ def render_paint(model, out, *, resolution: int = 512, spp: int = 64, variant: s
         `RenderResult` (linear image, seconds, spp, passes, path).
     """
     model = as_model(model)
-    resolution = _check_int("resolution", resolution, 16, 4096)
-    spp = _check_int("spp", spp, 1, 65536)
-    seed = _check_int("seed", seed, 0, (1 << 32) - 1)
+    resolution, spp, seed = _check_sizes(resolution, spp, seed)
     path = _check_out(out)
     mi = require_mitsuba(variant)
     result = _sphere(model, resolution, spp, variant, seed, progress)
@@ -248,9 +252,7 @@ def render_comparison(models: dict, out, **same) -> ComparisonResult:
     unknown = set(same) - {"resolution", "spp", "variant", "seed", "progress"}
     if unknown:
         raise ValueError(f"render_comparison takes resolution, spp, variant, seed, progress; got {sorted(unknown)}")
-    resolution = _check_int("resolution", same.get("resolution", 512), 16, 4096)
-    spp = _check_int("spp", same.get("spp", 64), 1, 65536)
-    seed = _check_int("seed", same.get("seed", 0), 0, (1 << 32) - 1)
+    resolution, spp, seed = _check_sizes(same.get("resolution", 512), same.get("spp", 64), same.get("seed", 0))
     variant, progress = same.get("variant"), bool(same.get("progress", True))
     path = _check_out(out, (".png",))
     paints = {label: as_model(m) for label, m in models.items()}
@@ -273,12 +275,6 @@ def render_comparison(models: dict, out, **same) -> ComparisonResult:
 
 
 # ---- render-based checks -------------------------------------------------------------------------------
-def _lightness_slope(R: np.ndarray) -> np.ndarray:
-    """dL*/dR of `reflectance_factor_to_lightness` (CIE 1976 with Y = 100 R)."""
-    eps, kappa = 216.0 / 24389.0, 24389.0 / 27.0
-    return np.where(R > eps, 116.0 / 3.0 * np.cbrt(np.maximum(R, eps)) ** -2, kappa)
-
-
 def closed_loop_lightness(model, aspecular_deg=(15.0, 25.0, 45.0, 75.0, 110.0), *, illumination_deg: float = 45.0,
                           spp: int = 64, passes: int = 4, variant: str | None = None, seed: int = 0) -> ClosedLoopResult:
     """Five-angle reflectance read back from a rendered flat panel (`panel_scene`): the closed loop.
@@ -299,7 +295,7 @@ def closed_loop_lightness(model, aspecular_deg=(15.0, 25.0, 45.0, 75.0, 110.0), 
         `ClosedLoopResult` (R and L* with standard errors from the passes).
     """
     from ..instrument._geometry import ma98_geometry
-    from ..instrument._lightness import reflectance_factor_to_lightness
+    from ..tracer._trace import lightness_with_se
 
     model = as_model(model)
     geometry = ma98_geometry(illumination_deg, aspecular_deg)  # ValueError naming the bad argument
@@ -317,9 +313,9 @@ def closed_loop_lightness(model, aspecular_deg=(15.0, 25.0, 45.0, 75.0, 110.0), 
         images = _render_passes(mi, scene, [per] * passes, seed=seed + k, sensor=k)
         R[k] = [math.pi * float(np.mean(im)) / math.cos(math.radians(theta_i)) for im in images]
     mean, se = R.mean(axis=1), R.std(axis=1, ddof=1) / math.sqrt(passes)
-    L = np.asarray(reflectance_factor_to_lightness(np.maximum(mean, 0.0)), dtype=float)
+    L, L_se = lightness_with_se(np.maximum(mean, 0.0), se)  # the tracer's delta-method L* SE
     return ClosedLoopResult(aspecular_deg=gamma, detector_polar_deg=signed, reflectance_factor=mean, reflectance_factor_se=se,
-                            lightness=L, lightness_se=_lightness_slope(mean) * se, illumination_deg=theta_i, spp=per * passes)
+                            lightness=L, lightness_se=L_se, illumination_deg=theta_i, spp=per * passes)
 
 
 def furnace_radiance(model, theta_o_deg: float, *, spp: int = 1 << 18, passes: int = 8, variant: str | None = None,
