@@ -17,6 +17,7 @@ from importlib import resources
 
 import numpy as np
 
+from ._progress import print_progress
 from .wave._profiles import CORRELATIONS
 
 
@@ -317,11 +318,8 @@ def simulate(
             goal = f" (target {target_se:g})" if rays is None else ""
             print(f"  {label}: {n_rays:,} rays, worst L* SE {float(np.max(Lse)):.2f}{goal}, {seconds:.1f} s", file=sys.stderr, flush=True)
 
-        def beat(fraction, seconds, label=label):
-            eta = f", about {seconds * (1.0 / fraction - 1.0):.0f} s left in this round" if fraction > 0 else ""
-            print(f"  {label}: {100 * fraction:.0f} % of this round's rays started, {seconds:.0f} s{eta}", file=sys.stderr, flush=True)
-
-        results.append(trace(array, geometry, platelet, progress=report if progress else None, heartbeat=beat if progress else None, **kwargs))
+        beat = print_progress(label, "of this round's rays started", "left in this round") if progress else None
+        results.append(trace(array, geometry, platelet, progress=report if progress else None, heartbeat=beat, **kwargs))
         if spectral and progress:
             print(f"  {label}: L* {np.round(results[-1].L_star, 1).tolist()}", file=sys.stderr, flush=True)
     res, spectrum = combine_spectral(results, SPECTRAL_NODES_NM) if spectral else (results[0], {})

@@ -283,3 +283,41 @@ def test_cli_lobe_json(tmp_path, capsys):
     assert rc == 0 and out["energy"]["scattered"] + out["energy"]["absorbed"] == pytest.approx(1.0, abs=2e-3)
     assert main(["lobe", "--incidence", "89", "--profiles", "1", "--length", "6"]) == 2
     assert "--incidence" in capsys.readouterr().err
+
+
+#: Shapes shared by the two chunking tests (one compilation each for 3 and 7 profiles).
+CHUNK_CASE = {"sigma": 0.051, "tau": 0.64, "length": 4.0, "step": 2.0, "profiles": 7, "chunk": 3}
+
+
+def test_chunked_solve_equals_one_shot_and_reports_progress(monkeypatch):
+    """Profiles solved in chunks of 3 (the last padded) give the one-shot lobes, coherent part, SEs and ledger
+    to rounding; the heartbeat reports between chunks, not after the last."""
+    import paintjax._progress as progress
+
+    monkeypatch.setattr(progress, "HEARTBEAT_SECONDS", 0.0)
+    c = CHUNK_CASE
+    dx = default_spacing(0.5, 1.5, sigma_um=c["sigma"], tau_um=c["tau"])
+    p = synthesize_profiles(jax.random.PRNGKey(4), c["sigma"], c["tau"], length_um=c["length"], spacing_um=dx, num_profiles=c["profiles"])
+    ths = np.clip(np.arange(-90.0, 90.0 + 1e-9, c["step"]), -90.0, 90.0)
+    beats = []
+    one = solve_profiles(p, [0.0], ths, chunk_size=c["profiles"])
+    chunked = solve_profiles(p, [0.0], ths, chunk_size=c["chunk"], heartbeat=lambda f, s: beats.append((f, s)))
+    for name in ("sigma", "sigma_coherent", "sigma_sem", "reflected", "reflected_se", "coherent_reflectance", "coherent_reflectance_se", "absorbed"):
+        a, b = np.asarray(getattr(one, name)), np.asarray(getattr(chunked, name))
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-14 * max(np.abs(a).max(), 1e-300), err_msg=name)
+    assert chunked.num_profiles == 7 and [f for f, _ in beats] == [3 / 7, 6 / 7] and all(s >= 0 for _, s in beats)
+
+
+def test_cli_lobe_prints_progress_with_time_left(tmp_path, monkeypatch, capsys):
+    """`paintjax lobe` prints a progress line with the time left between chunks (interval 0 here, 5 s by default)."""
+    import paintjax._progress as progress
+    import paintjax.wave._solver as solver
+    from paintjax.cli._main import main
+
+    monkeypatch.setattr(progress, "HEARTBEAT_SECONDS", 0.0)
+    monkeypatch.setattr(solver, "PROFILE_CHUNK", CHUNK_CASE["chunk"])
+    c = CHUNK_CASE
+    argv = ["lobe", "--profiles", str(c["profiles"]), "--length", str(c["length"]), "--step", str(c["step"]), "--json", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    lines = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(lines) == 2 and lines[0].startswith("  lobe: 43 % of 7 profiles solved") and " s left" in lines[0], lines

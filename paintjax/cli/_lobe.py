@@ -46,6 +46,7 @@ API_FLAGS = {"sigma_um": "--sigma", "tau_um": "--tau", "wavelength_um": "--wavel
 def compute(args) -> dict:
     """Solve and return the lobes and the energy ledger as plain arrays (the CLI's data)."""
     from .. import profile_averaged_lobes
+    from .._progress import print_progress
     from ..wave._profiles import load_line_scan, process_line_scan, profile_statistics, profiles_from_heights
     from ..wave._solver import check_energy, default_spacing, solve_profiles
 
@@ -61,15 +62,15 @@ def compute(args) -> dict:
         spacing = default_spacing(args.wavelength, args.n, args.ppw)
         prof = profiles_from_heights(x, h, spacing)
         stats = profile_statistics(np.asarray(prof.h[0]), prof.spacing)
-        lobes = solve_profiles(
-            prof, args.incidence, theta_s, wavelength_um=args.wavelength, n_medium=args.n, boundary=args.bc, polarization=args.pol
-        )
+        lobes = solve_profiles(prof, args.incidence, theta_s, wavelength_um=args.wavelength, n_medium=args.n, boundary=args.bc,
+                               polarization=args.pol, heartbeat=print_progress("lobe", "of the profile solved"))
         source = {"file": str(args.profile), "length_um": prof.length, "sigma_um": float(stats["sigma_um"]), "tau_um": float(stats["tau_um"])}
     else:
         lobes = profile_averaged_lobes(
             args.sigma, args.tau, length_um=args.length, num_profiles=args.profiles, seed=args.seed,
             incidence_deg=args.incidence, theta_s_deg=theta_s, wavelength_um=args.wavelength, n_medium=args.n,
             boundary=args.bc, polarization=args.pol, correlation=args.correlation, points_per_wavelength=args.ppw,
+            heartbeat=print_progress("lobe", f"of {args.profiles} profiles solved"),
         )
         source = {"synthesised": args.correlation, "profiles": args.profiles, "seed": args.seed, "length_um": args.length,
                   "sigma_um": args.sigma, "tau_um": args.tau}

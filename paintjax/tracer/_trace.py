@@ -97,6 +97,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, PartitionSpec
 
+from .._progress import Heartbeat
 from ..brdf._platelet import AbstractPlateletBRDF, MirrorBRDF
 from ..instrument._geometry import Geometry
 from ..instrument._lightness import reflectance_factor_to_lightness
@@ -214,8 +215,6 @@ def _seed_state(seed) -> int:
 
 #: Most rays one trace call accepts (≈ 9 h at 30k rays/s on 2 CPU cores).
 MAX_RAYS = 1_000_000_000
-#: Seconds between `heartbeat` calls inside a round.
-HEARTBEAT_SECONDS = 5.0
 
 
 def check_ray_count(rays, options: TracerOptions | None = None, name: str = "rays") -> None:
@@ -330,8 +329,8 @@ def trace(
         options: `TracerOptions`.
         progress: called after every round as `progress(rays, L_star_se, seconds)` (rays traced so
             far, the L* standard errors per detector, seconds since tracing began); None: silent.
-        heartbeat: called every `HEARTBEAT_SECONDS` inside a round as `heartbeat(fraction of the
-            round's rays started, seconds since tracing began)`, for a progress line with an ETA.
+        heartbeat: called every `paintjax._progress.HEARTBEAT_SECONDS` inside a round as `heartbeat(fraction
+            of the round's rays started, seconds since tracing began)`, for a progress line with an ETA.
 
     Returns:
         A `TraceResult`. Warns (RuntimeWarning) when light reached a detector in fewer than half the
@@ -392,7 +391,8 @@ def trace(
     per_forward = sum(frac for _, frac in passes)  # rays of all passes per forward ray
     n_local = -(-int(np.ceil(int(rays) / per_forward)) // ndev)
     limit_local = -(-int(np.ceil(int(max_rays if max_rays is not None else 64 * int(rays)) / per_forward)) // ndev)
-    t0 = beat = time.perf_counter()
+    t0 = time.perf_counter()
+    pulse = Heartbeat(heartbeat) if heartbeat is not None else None
     while True:
         parts = []
         for item in live:
@@ -404,9 +404,8 @@ def trace(
                 busy = bool(jnp.any(state[0][3]) | jnp.any(state[0][-1] != 0))
                 if not busy and int(jnp.min(state[2])) >= target:
                     break
-                if heartbeat is not None and time.perf_counter() - beat >= HEARTBEAT_SECONDS:  # the count read only then
-                    beat = time.perf_counter()
-                    heartbeat(min(int(jnp.min(state[2])), target) / target, beat - t0)
+                if pulse is not None and pulse.due():  # the count read only then
+                    pulse(min(int(jnp.min(state[2])), target) / target)
             item[2] = state
             parts.append(_summarise(np.asarray(state[1], dtype=float), m, opt.batches))
         est, se, per_batch, ledger, N = _combine(parts, m)

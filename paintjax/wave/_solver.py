@@ -18,8 +18,9 @@ to ~1e-4 at 12 points per wavelength (see tests/test_wave.py and BENCHMARKS.md);
 rough surfaces is the finite profile's runoff (below).
 
 The matrices depend on the profile and polarisation only: each is LU-factorised once and every
-incidence angle is a right-hand-side column; all profiles run in one compiled loop (`jax.lax.map`,
-optionally vmapped in batches). Limits: the Thorsos beam needs (1 + 2tan²θ_i)/(2k²g²cos²θ_i) ≤ 0.02
+incidence angle is a right-hand-side column; the profiles run through one compiled loop (`jax.lax.map`,
+optionally vmapped in batches) in equal chunks of at most `PROFILE_CHUNK`, between which the host
+combines the per-profile results and reports progress (no callback inside the compiled code). Limits: the Thorsos beam needs (1 + 2tan²θ_i)/(2k²g²cos²θ_i) ≤ 0.02
 (θ_i ≤ 74.3° for 20 µm profiles, `max_incidence_deg`: on a flat Al surface the reflectance is then
 within 2e-3 of Leontovich's and the energy error ≤ 2e-3, against 4 % and 16 % (TE, TM) at the
 earlier limit 0.1, 79.5°). On a finite rough surface waves scattered to grazing angles run off the
@@ -44,6 +45,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -52,8 +54,18 @@ import numpy as np
 from jax.scipy.linalg import lu_factor, lu_solve
 from jaxtyping import Array, Complex, Float
 
+from .._progress import Heartbeat
 from ..optics._aluminium import _check_wavelength, aluminium_index
 from ._beam import incident_field, incident_power, max_incidence_deg
+from ._checks import (
+    MAX_PROFILES,
+    MAX_SIGMA_UM,
+    MAX_TAU_UM,
+    _check_angles,
+    _check_profile_points,
+    _check_scalar,
+    check_energy,  # noqa: F401 (imported from here by brdf._table and the CLI)
+)
 from ._coherent import (
     COHERENT_WINDOW,
     MIN_PROFILES_CONTROL,
@@ -252,61 +264,6 @@ def solve_batch(h, dh, d2h, x, inc, ang, etas, k, dx, g, *, kinds, band, batch_s
     return jax.lax.map(one, (h, dh, d2h), batch_size=batch_size)
 
 
-#: Most scattering angles of one solve.
-MAX_ANGLES = 20000
-
-
-def _check_angles(name: str, deg, lo: float, hi: float) -> np.ndarray:
-    a = np.atleast_1d(np.asarray(deg, dtype=float))
-    if a.ndim != 1 or a.size == 0 or a.size > MAX_ANGLES or not np.all(np.isfinite(a)) or np.any(a < lo) or np.any(a > hi):
-        got = repr(deg) if a.size <= 8 else f"{a.size} values from {np.nanmin(a):.6g} to {np.nanmax(a):.6g}"
-        raise ValueError(f"{name} must be a non-empty 1-D list of at most {MAX_ANGLES} angles in [{lo:.4g}, {hi:.4g}] degrees, got {got}")
-    return a
-
-
-#: Reflected + absorbed power above 1 + this at any incidence marks an unconverged solve (a converged
-#: one conserves energy to ~1e-3; the truncated profile's runoff loses ≲ 2 % near grazing, not refused).
-WAVE_ENERGY_TOLERANCE = 0.01
-#: Largest rms roughness and correlation length of a synthesised surface [µm].
-MAX_SIGMA_UM, MAX_TAU_UM = 10.0, 100.0
-#: Most profiles of one average (each is a dense solve; the tables use 40).
-MAX_PROFILES = 2000
-#: Most points on one profile (a dense complex system of this order per profile and polarisation).
-MAX_PROFILE_POINTS = 8000
-
-
-def check_energy(reflected, absorbed, incidence_deg, *, solved=None, what: str = "the wave solution",
-                 fix: str = "more points per wavelength or a gentler slope") -> None:
-    """Refuse an unconverged solve: a ValueError with the energy ledger where reflected + absorbed
-    power exceeds 1 + `WAVE_ENERGY_TOLERANCE` at any incidence (`solved`: where `absorbed` was solved;
-    elsewhere the reflected power alone is checked)."""
-    R = np.atleast_1d(np.asarray(reflected, float))
-    A = np.broadcast_to(np.asarray(absorbed, float), R.shape)
-    inc = np.broadcast_to(np.asarray(incidence_deg, float), R.shape)
-    total = np.where(np.ones(R.shape, bool) if solved is None else np.asarray(solved, bool), R + A, R)
-    if np.all(total <= 1.0 + WAVE_ENERGY_TOLERANCE):
-        return
-    j = int(np.argmax(total))
-    raise ValueError(f"{what} reflects {R[j]:.3g} and absorbs {A[j]:.3g} of the incident power at {inc[j]:g}° incidence "
-                     f"(sum {total[j]:.3g} > 1 + {WAVE_ENERGY_TOLERANCE:g}), so it is not converged; use {fix}")
-
-
-def _check_profile_points(points: float) -> None:
-    if not points <= MAX_PROFILE_POINTS:
-        raise ValueError(f"length_um / spacing = {points:.4g} points on one profile, more than {MAX_PROFILE_POINTS}: shorten "
-                         "length_um, or raise wavelength_um or lower points_per_wavelength")
-
-
-def _check_scalar(name: str, value, lo: float, hi: float) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a number in ({lo}, {hi}], got {value!r}") from None
-    if not (np.isfinite(v) and lo < v <= hi):
-        raise ValueError(f"{name} must lie in ({lo}, {hi}], got {value!r}")
-    return v
-
-
 def _medium(wavelength_um, n_medium, boundary, polarization, metal_index):
     """Validated wavelength and binder index, the boundary's channels and the wavenumber k in the binder."""
     wavelength_um = _check_scalar("wavelength_um", wavelength_um, 0.0, 20.0)
@@ -317,6 +274,44 @@ def _medium(wavelength_um, n_medium, boundary, polarization, metal_index):
 def quadrature_points(k: float, length_um: float) -> int:
     """Gauss–Legendre nodes in θ_s used for ∫σ dθ_s (resolves the far-field bandwidth kL)."""
     return int(math.ceil(k * length_um * math.pi / 4.0)) + 64
+
+
+#: Most profiles per compiled call of `solve_profiles` (between calls the host reports progress).
+PROFILE_CHUNK = 8
+
+
+def _solve_in_chunks(profiles: Profiles, solve, ns: int, norm, weights, chunk_size, heartbeat):
+    """Every profile through `solve` (`solve_batch` with all but the profile arrays bound) in equal chunks
+    (the last padded with copies of the last profile, so one compilation serves all; the next chunk is
+    dispatched before the previous one is read back), reduced per profile on the host.
+
+    Returns:
+        numpy arrays: amplitudes at the first `ns` angles (B, C, S, I), the reflected fraction ∫σ dθ_s over
+        the quadrature angles after them (B, I), absorbed power (B, C, I) and control sums (B, S, I).
+    """
+    b = int(profiles.h.shape[0])
+    chunk = int(PROFILE_CHUNK if chunk_size is None else chunk_size)
+    if chunk < 1:
+        raise ValueError(f"chunk_size must be a positive integer, got {chunk_size!r}")
+    chunk = -(-b // -(-b // chunk))  # as even as the count of chunks allows: at most one padded profile per chunk
+    pulse = Heartbeat(heartbeat) if heartbeat is not None else None
+    parts, pending = [], None
+
+    def collect(start, out):
+        amps, absorbed, control = (np.asarray(a)[: b - start] for a in out)
+        refl = np.mean(np.einsum("bcqi,q->bci", np.abs(amps[:, :, ns:]) ** 2 / np.asarray(norm), np.asarray(weights)), axis=1)
+        parts.append((amps[:, :, :ns], refl, absorbed, control[:, :ns]))
+        if pulse is not None and start + chunk < b:  # none at the end: the caller reports what it got
+            pulse((start + chunk) / b)
+
+    for start in range(0, b, chunk):
+        idx = np.minimum(np.arange(start, start + chunk), b - 1)
+        out = solve(profiles.h[idx], profiles.dh[idx], profiles.d2h[idx])  # dispatched; (B, C, A, I), (B, C, I), (B, A, I)
+        if pending is not None:
+            collect(*pending)
+        pending = (start, out)
+    collect(*pending)
+    return tuple(np.concatenate(a) for a in zip(*parts))
 
 
 def solve_profiles(
@@ -332,6 +327,8 @@ def solve_profiles(
     taper_um: float | None = None,
     batch_size: int | None = None,
     control_variate: bool = True,
+    chunk_size: int | None = None,
+    heartbeat: Callable[[float, float], None] | None = None,
 ) -> WaveLobes:
     """Scattering lobes of given profiles, averaged over the profiles (the jit boundary).
 
@@ -350,6 +347,10 @@ def solve_profiles(
             (default 1: on CPU, vmapping the fill and LU over profiles measured 3–5× slower).
         control_variate: use the Kirchhoff control variate for `sigma` when the profiles carry the
             covariance of their process (synthesised profiles) and B ≥ 4 (see `control_variate_mean`).
+        chunk_size: most profiles per compiled call (default `PROFILE_CHUNK`); the host loop over the
+            calls combines their per-profile results, so the lobes do not depend on it (to rounding).
+        heartbeat: called between calls (not after the last), at most every `paintjax._progress.HEARTBEAT_SECONDS`,
+            as `heartbeat(fraction of the profiles solved, seconds since solving began)`; None: silent.
 
     Returns:
         `WaveLobes`.
@@ -373,24 +374,21 @@ def solve_profiles(
     kinds = tuple(c[0] for c in chans)
     etas = jnp.asarray([c[1] for c in chans], dtype=jnp.result_type(complex))
     inc_rad = np.radians(inc)
-    amps, absorbed, control = solve_batch(
-        profiles.h, profiles.dh, profiles.d2h, profiles.x, jnp.asarray(inc_rad), jnp.asarray(ang), etas,
-        k, dx, g, kinds=kinds, band=band_width(k, dx), batch_size=int(batch_size),
-    )  # (B, C, A, I), (B, C, I), (B, A, I)
     p_inc = incident_power(jnp.asarray(inc_rad), k, g)  # (I,)
     norm = 8.0 * jnp.pi * k * p_inc
     ns = ths.shape[0]
-    sig_all = jnp.abs(amps) ** 2 / norm  # (B, C, A, I)
-    sig_user = jnp.mean(sig_all[:, :, :ns], axis=1)  # (B, S, I) mean over channels
-    refl = jnp.mean(jnp.einsum("bcqi,q->bci", sig_all[:, :, ns:], jnp.asarray(wq * np.pi / 2.0)), axis=1)  # (B, I)
+    solve = functools.partial(solve_batch, x=profiles.x, inc=jnp.asarray(inc_rad), ang=jnp.asarray(ang), etas=etas, k=k, dx=dx, g=g,
+                              kinds=kinds, band=band_width(k, dx), batch_size=int(batch_size))
+    amps, refl, absorbed, control = _solve_in_chunks(profiles, solve, ns, norm, jnp.asarray(wq * np.pi / 2.0), chunk_size, heartbeat)
+    sig_user = np.mean(np.abs(amps) ** 2 / np.asarray(norm), axis=1)  # (B, S, I) mean over channels
     b = sig_user.shape[0]
     expected = expected_mean = None
     if control_variate and profiles.covariance is not None and b >= MIN_PROFILES_CONTROL:
         expected = expected_control_power(profiles.covariance, profiles.x, dx, g, k, inc_rad, np.radians(ths))  # (S, I)
         expected_mean = expected_control_amplitude(profiles.covariance, profiles.x, g, k, inc_rad, np.radians(ths))
-    sigma, sem = control_variate_mean(sig_user, jnp.abs(control[:, :ns]) ** 2, expected)
+    sigma, sem = control_variate_mean(sig_user, np.abs(control) ** 2, expected)
     window = np.abs(np.sin(np.radians(ths))[:, None] - np.sin(inc_rad)[None, :]) < COHERENT_WINDOW / (k * g)  # (S, I)
-    coh, r_coh, r_coh_se = coherent_estimate(amps[:, :, :ns], norm, window, np.radians(ths), control[:, :ns], expected_mean)
+    coh, r_coh, r_coh_se = coherent_estimate(amps, norm, window, np.radians(ths), control, expected_mean)
     return WaveLobes(
         incidence_deg=jnp.asarray(inc),
         theta_s_deg=jnp.asarray(ths),
@@ -401,7 +399,7 @@ def solve_profiles(
         reflected_se=jnp.std(refl, axis=0, ddof=1) / math.sqrt(b) if b > 1 else jnp.zeros(refl.shape[1:]),
         coherent_reflectance=r_coh,
         coherent_reflectance_se=r_coh_se,
-        absorbed=jnp.mean(absorbed / p_inc, axis=(0, 1)),
+        absorbed=jnp.mean(absorbed / np.asarray(p_inc), axis=(0, 1)),
         boundary=boundary,
         polarization=polarization,
         num_profiles=int(b),
@@ -507,6 +505,7 @@ def profile_averaged_lobes(
     correlation: str = "gaussian",
     points_per_wavelength=None,
     metal_index=None,
+    heartbeat: Callable[[float, float], None] | None = None,
 ) -> WaveLobes:
     """Lobes of `num_profiles` seeded synthetic profiles (σ, τ in µm), averaged over the profiles.
 
@@ -519,6 +518,7 @@ def profile_averaged_lobes(
         boundary, polarization, metal_index: see `solve_profiles`.
         correlation: "gaussian" or "exponential".
         points_per_wavelength: sampling in the medium (default: `default_spacing` of this surface).
+        heartbeat: progress report `(fraction of the profiles solved, seconds)` (see `solve_profiles`).
 
     Returns:
         `WaveLobes`.
@@ -545,7 +545,7 @@ def profile_averaged_lobes(
     )
     return solve_profiles(
         profiles, incidence_deg, theta_s_deg, wavelength_um=wavelength_um, n_medium=n_medium,
-        boundary=boundary, polarization=polarization, metal_index=metal_index,
+        boundary=boundary, polarization=polarization, metal_index=metal_index, heartbeat=heartbeat,
     )
 
 
