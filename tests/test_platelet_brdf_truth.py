@@ -173,23 +173,26 @@ def test_in_plane_width_matches_geometric_optics(theta_i):
 
 
 @functools.lru_cache(maxsize=None)
-def kirchhoff_pair():
-    sigma, tau = 0.051, 0.64
+def kirchhoff_pair(tau):
+    sigma = 0.051
     return table_from_lobes(kirchhoff_lobes(sigma, tau), min_width=2.0 * 0.5 / (2 * np.pi * 1.5 * tau)), BeckmannBRDF(sigma, tau)
 
 
-@pytest.mark.parametrize("theta_i", [0.0, 10.0, 20.0, 40.0, 60.0, 80.0])
-def test_3d_construction_over_the_full_hemisphere(theta_i):
+@pytest.mark.parametrize("tau", [0.55, 0.64, 0.75])
+@pytest.mark.parametrize("theta_i", [0.0, 10.0, 20.0, 40.0, 60.0, 70.0, 80.0])
+def test_3d_construction_over_the_full_hemisphere(theta_i, tau):
     """The 2-D → 3-D step (inverse Abel, q_z continuation, symmetric scale) applied to 1-D Kirchhoff
     lobes reproduces the analytic isotropic 3-D Kirchhoff BRDF over the whole exit hemisphere, not
-    only in the plane: the scattered-power-weighted L1 difference ∫|f − f_K| cos dω / ∫ f_K cos dω ≤ 5 %
-    at 0–60° and ≤ 10 % at 80°, where the lobe lies mostly beyond the horizon."""
-    table, analytic = kirchhoff_pair()
+    only in the plane: the scattered-power-weighted L1 difference ∫|f − f_K| cos dω / ∫ f_K cos dω ≤ 3 %
+    at 0–80° for σ 0.051 µm and τ around the measured 0.64 µm (measured ≤ 2.4 %). Towards grazing the
+    lobe becomes the narrowest Kirchhoff term, of width 2/(kτ); tables that could not represent that
+    width between two basis widths were 4–10 % off at 70–80°, by an amount that jumped with τ."""
+    table, analytic = kirchhoff_pair(tau)
     wo, wt = hemisphere()
     wi = jnp.asarray(direction(theta_i))
     f, ref = np.asarray(call(table, "incoherent", wi, wo)), np.asarray(call(analytic, "incoherent", wi, wo))
     l1 = np.sum(np.abs(f - ref) * wt) / np.sum(ref * wt)
-    assert l1 <= (0.10 if theta_i > 60 else 0.05), l1
+    assert l1 <= 0.03, l1
 
 
 BOX = [(0.01, 0.2), (0.01, 2.0), (0.3, 0.2), (0.3, 2.0), (0.051, 0.64)]
@@ -273,17 +276,33 @@ def fine_grid(sigma, tau, source):
     return grid, kw
 
 
-@pytest.mark.parametrize("sigma,tau,source", [(0.051, 0.64, "wave"), (0.14, 0.39, "kirchhoff")])
+def mid_cells(sigma, tau):
+    """The four mid-cell points of the grid about (σ, τ): the centres of its four cells."""
+    r = np.sqrt(FINE)
+    return [(sigma * a, tau * b) for b in (1 / r, r) for a in (1 / r, r)]
+
+
+@functools.lru_cache(maxsize=None)
+def direct_table(q, source):
+    kw = dict(source=source) if source == "kirchhoff" else dict(num_profiles=8)
+    return platelet_brdf_table(*q, coherent="delta", **kw)
+
+
+GRID_CASES = [(0.051, 0.64, "wave"), (0.14, 0.39, "kirchhoff")]
+GRID_INCIDENCES = (0.0, 40.0, 70.0, 80.0)
+
+
+@pytest.mark.parametrize("sigma,tau,source", GRID_CASES)
 def test_grid_built_table_within_3_percent_of_a_direct_table(sigma, tau, source):
-    """A table built from the grid's in-plane lobes interpolated at a mid-cell point (`build_at`) is within
-    3 % of a table built there directly (scattered-power weighted L1) at 0°, 40° and 70°: the measured
-    roughness with wave tables, and a steep surface (σ 0.14, τ 0.39 µm) with Kirchhoff-source tables
-    (measured ≤ 2.4 %); at a node it is the node's table; its albedo is the stated one."""
+    """A table built from the grid's in-plane lobes interpolated at the centre of each of the grid's
+    four cells (`build_at`) is within 3 % of a table built there directly (scattered-power weighted L1)
+    at 0°, 40°, 70° and 80°: the measured roughness with wave tables, and a steep surface (σ 0.14,
+    τ 0.39 µm) with Kirchhoff-source tables (measured ≤ 2.6 %); at a node it is the node's table."""
     grid, kw = fine_grid(sigma, tau, source)
     wo, wt = hemisphere()
-    for q in ((sigma / np.sqrt(FINE), tau / np.sqrt(FINE)), (sigma * np.sqrt(FINE), tau / np.sqrt(FINE))):
-        built, direct = grid.build_at(*q), platelet_brdf_table(*q, coherent="delta", **kw)
-        for ti in (0.0, 40.0, 70.0):
+    for q in mid_cells(sigma, tau):
+        built, direct = grid.build_at(*q), direct_table(q, source)
+        for ti in GRID_INCIDENCES:
             assert _l1(built, direct, ti, wo, wt) <= 0.03, (q, ti, _l1(built, direct, ti, wo, wt))
     node = platelet_brdf_table(sigma, tau, coherent="delta", **kw)
     assert _l1(grid.build_at(sigma, tau), node, 0.0, wo, wt) < 1e-6
@@ -291,18 +310,22 @@ def test_grid_built_table_within_3_percent_of_a_direct_table(sigma, tau, source)
         grid.build_at(sigma, 3.0 * tau)
 
 
-@pytest.mark.parametrize("sigma,tau,source", [
-    (0.051, 0.64, "wave"),
-    pytest.param(0.14, 0.39, "kirchhoff", marks=pytest.mark.xfail(strict=True, reason="`at` is 3.5 % from a direct table at 70° here (open)")),
+_OPEN = pytest.mark.xfail(strict=True, reason="`at` is more than 3 % from a direct table at 70–80° in this cell (open)")
+
+
+@pytest.mark.parametrize("sigma,tau,source,cell", [
+    (0.051, 0.64, "wave", 0), (0.051, 0.64, "wave", 1),
+    pytest.param(0.051, 0.64, "wave", 2, marks=_OPEN), pytest.param(0.051, 0.64, "wave", 3, marks=_OPEN),
+    *[pytest.param(0.14, 0.39, "kirchhoff", cell, marks=_OPEN) for cell in range(4)],
 ])
-def test_grid_at_within_3_percent_of_a_direct_table(sigma, tau, source):
+def test_grid_at_within_3_percent_of_a_direct_table(sigma, tau, source, cell):
     """The differentiable path `at` (lobes aligned in width, then interpolated) within 3 % of a direct
-    table at the same mid-cell points. Measured 0.8–2.3 % for the wave tables; for the steep surface
-    1.0–3.5 %, above 3 % at 70° (where the direct tables' radial-lobe fit leaves 20–35 % residuals and
-    is itself not smooth in (σ, τ)): expected to fail there."""
-    grid, kw = fine_grid(sigma, tau, source)
+    table at the centre of each grid cell, at 0°, 40°, 70° and 80°. Measured for the wave tables
+    1.0–2.5 % in the two cells of smaller τ and up to 3.0 % at 70° and 3.6 % at 80° in the two of larger
+    τ; for the steep surface 1.0–3.5 % at 0–70° and 3.0–7.2 % at 80°: those cells are expected to fail."""
+    grid, _ = fine_grid(sigma, tau, source)
     wo, wt = hemisphere()
-    for q in ((sigma / np.sqrt(FINE), tau / np.sqrt(FINE)), (sigma * np.sqrt(FINE), tau / np.sqrt(FINE))):
-        between, direct = grid.at(*q), platelet_brdf_table(*q, coherent="delta", **kw)
-        for ti in (0.0, 40.0, 70.0):
-            assert _l1(between, direct, ti, wo, wt) <= 0.03, (q, ti)
+    q = mid_cells(sigma, tau)[cell]
+    between, direct = grid.at(*q), direct_table(q, source)
+    errors = {ti: _l1(between, direct, ti, wo, wt) for ti in GRID_INCIDENCES}
+    assert max(errors.values()) <= 0.03, errors

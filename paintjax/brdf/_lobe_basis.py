@@ -28,6 +28,15 @@ def _lobe_widths(num_widths: int = DEFAULT_NUM_WIDTHS) -> np.ndarray:
     return np.geomspace(_MIN_WIDTH, _MAX_WIDTH, num_widths)
 
 
+def usable_widths(widths, min_width: float) -> np.ndarray:
+    """Mask of the basis widths a lobe fit may use: those ≥ `min_width` and the one just below it, so that
+    the two widths bracketing `min_width` can represent a lobe of exactly that width (the narrowest
+    Kirchhoff term 2/(kτ), which the lobe becomes at grazing) and the fitted lobe varies continuously
+    with τ instead of jumping by a basis step."""
+    first = int(np.searchsorted(widths, min_width))
+    return np.arange(len(widths)) >= max(first - 1, 0)
+
+
 def fit_radial_lobe(u, p, weights, widths, method: str = "abel", min_width: float = 0.0, *, floor=None, reweight: int = REWEIGHT_PASSES):
     """Radial 2-D lobe coefficients of in-plane data p at distances u from the specular point.
 
@@ -45,7 +54,7 @@ def fit_radial_lobe(u, p, weights, widths, method: str = "abel", min_width: floa
     Returns:
         (coefficients C (K,), weighted relative rms residual).
     """
-    A = np.exp(-(u[:, None] ** 2) / widths**2) * (widths >= min_width)
+    A = np.exp(-(u[:, None] ** 2) / widths**2) * usable_widths(widths, min_width)
     if method == "abel":
         A = A * (np.sqrt(np.pi) * widths)
     ref = np.maximum(p, 0.0)
