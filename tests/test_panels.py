@@ -41,11 +41,38 @@ def test_bad_rows_are_reported_per_row(tmp_path):
     errors = {b["row"]: b["error"] for b in bad}
     assert "duplicate id 'x'" in errors[2] and errors[3] == "no id" and "L25 must be finite" in errors[4]
     assert "needs L* at 3 or more" in errors[5] and "sd15 must be > 0" in errors[6]
-    (tmp_path / "q.csv").write_text("id,L-15,L15\na,1,2\n")
-    with pytest.raises(ValueError, match=r"\['L-15'\] are not modelled"):
+    (tmp_path / "q.csv").write_text("id,L80,L15\na,1,2\n")  # 80° is an angle of 15° illumination
+    with pytest.raises(ValueError, match=r"\['L80'\] are not modelled"):
         read_panels(tmp_path / "q.csv")
     with pytest.raises(ValueError, match="is a folder"):
         read_panels(tmp_path)
+
+
+def test_minus_15_enters_the_fit_of_a_panel_that_gives_it(tmp_path):
+    """`L-15` (and `sd-15`): a panel with L* at −15° is fitted at six angles, its −15° residual in the χ²
+    (one more dof); a panel without it is fitted at the standard five; a row with −15° and two other angles
+    is a panel; the analytic model gives −15° too; a forward model without −15° refuses the file by name."""
+    from paintjax import ASPECULAR_45
+    from paintjax.inverse import make_forward
+    from paintjax.inverse._panels import panel_figure
+
+    path = tmp_path / "p.csv"
+    path.write_text("id,L-15,L15,L25,L45,L75,L110,sd-15\nfive,,143.3,107.2,58.6,37.2,32.1,\nsix,150,143.3,107.2,58.6,37.2,32.1,0.5\n"
+                    "low,100,143.3,107.2,58.6,37.2,32.1,0.5\nthree,150,143.3,,58.6,,,\n")
+    panels, bad = read_panels(path)
+    assert not bad and [p["id"] for p in panels] == ["five", "six", "low", "three"]
+    assert panels[1]["sd"][0] == 0.5 and panels[0]["sd"][0] == 0.3 and np.isnan(panels[3]["L_star"][[2, 4, 5]]).all()
+    five, six, low = (fit_panel(p, **SETTINGS) for p in panels[:3])
+    assert five["dof"] == 1 and "L-15_fit" not in five and six["dof"] == 2 and np.isfinite(six["L-15_fit"])
+    # the −15° residual enters: the fit follows it (150.9 and 135.7 L* fitted), and 100 L* is far from any of the model's curves
+    assert low["chi2"] > six["chi2"] + 50 and low["L-15_fit"] < six["L-15_fit"] - 5 and low["shape"] != six["shape"]
+    panel_figure(panels[1], six, tmp_path / "six.png")
+    assert (tmp_path / "six.png").stat().st_size > 0
+    analytic = make_forward("analytic", angles=ASPECULAR_45)
+    theta = np.array([[2.3, 2.2, 0.05, 0.64, 0.0]])
+    np.testing.assert_array_equal(np.asarray(analytic(theta))[:, 1:], np.asarray(make_forward("analytic")(theta)))
+    with pytest.raises(ValueError, match=r"\['L-15'\] hold L\* at -15°, which the forward model 'tracer-emulator' does not give"):
+        fit_panels(path, tmp_path / "out.csv", **(SETTINGS | {"forward": "tracer-emulator"}))
 
 
 def test_batch_on_two_workers_matches_serial_survives_a_killed_worker_and_resumes(tmp_path, client):

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from paintjax.inverse._registry import FORWARDS, make_forward
-from paintjax.inverse._tracer_forward import TracerLStar, TracerSettings, direct_tracer, tracer_info
+from paintjax.inverse._tracer_emulator import direct_tracer, tracer_info
+from paintjax.inverse._tracer_forward import TracerLStar, TracerSettings
 
 TINY = TracerSettings(rays=2048, tile_um=120.0, table_source="kirchhoff", sigma_nodes=(0.04, 0.08, 2),
                       tau_nodes=(0.5, 1.0, 2), lanes=256, batches=8)
@@ -56,6 +57,23 @@ def test_smooth_under_common_random_numbers(fn):
     a, ref = fn.array(*REFERENCE_TILT, seed=0), fn.reference_array(0)
     np.testing.assert_allclose(np.asarray(a.normals), np.asarray(ref.normals), atol=1e-6)
     np.testing.assert_allclose(np.asarray(a.centers), np.asarray(ref.centers), atol=1e-5)
+
+
+def test_minus_15_is_traced_in_its_own_pass_and_leaves_the_five_angles_bit_for_bit(fn):
+    """`extra_aspecular=(-15,)`: the same array and paths, −15° in a second pass, so the standard five
+    are the five-angle tracer's numbers exactly; the registered narrow emulator refuses −15° by name."""
+    import dataclasses
+
+    six = TracerLStar(dataclasses.replace(TINY, extra_aspecular=(-15.0,)))
+    a6 = six(THETA[:1])
+    assert six.angles == (-15.0, 15.0, 25.0, 45.0, 75.0, 110.0) and a6.shape == (1, 6) and np.all(np.isfinite(a6))
+    np.testing.assert_array_equal(a6[:, 1:], fn(THETA[:1]))
+    np.testing.assert_array_equal(six.with_angles((-15.0,))(THETA[:1])[:, 0], a6[:, 0])
+    assert six.settings.identity() != TINY.identity() and "extra_aspecular" not in TINY.identity()
+    with pytest.raises(ValueError, match=r"forward model 'tracer-emulator' gives L\* at 15, 25, 45, 75, 110°, not at -15°"):
+        make_forward("tracer-emulator", ("shape", "scale", "sigma", "tau"), angles=(-15.0, 15.0, 25.0))
+    with pytest.raises(ValueError, match="extra_aspecular must be distinct"):
+        TracerSettings(extra_aspecular=(15.0,))
 
 
 def test_registered_emulator_builds_from_a_tiny_design_and_caches(tmp_path):

@@ -68,7 +68,8 @@ def add_fit_arguments(p) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--sample", help="reference sample whose measured L* to fit: silver1 or silver2 (default silver1)")
     g.add_argument("--measured", help="five L* values at 15,25,45,75,110°, e.g. 143.3,107.2,58.6,37.2,32.1")
-    g.add_argument("--data", help="CSV of many panels (id, L15, L25, L45, L75, L110, optional sd15 … sd110 and known inputs "
+    g.add_argument("--data", help="CSV of many panels (id, L* at any three or more of L-15, L15, L25, L45, L75, L110, optional "
+                                  "sd-15 … sd110 and known inputs "
                                   "shape, scale, sigma, tau with *_sd); 'example' reads the 3-panel file shipped with the package. "
                                   "One fit (and with --posterior one posterior) per panel on Dask; results in <--out>/fit_panels.csv "
                                   "and .nc, a figure per panel in <--out>/figures (a rerun skips panels already done)")

@@ -7,6 +7,7 @@ reports held-out errors; `Emulator` is then a jittable `ForwardModel` with a mod
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import math
@@ -98,8 +99,8 @@ class Emulator(ForwardModel):
     `error_sd` is the cross-validated RMS error per angle: the held-out errors (independent LHS set)
     pooled with the leave-one-out errors of the training design, so that it rests on all
     n_train + n_test runs (the held-out set alone is small); `held_out_rms` and `held_out_loo_rms`
-    are the two parts, `held_out_max` the largest held-out error.
-    With a `mean_model`, L* = c₀ + c₁·L*_mean + GP([unit θ, standardised L*_mean at `mean_features`]).
+    are the two parts, `held_out_max` the largest held-out error (`held_out_max_by_angle` per angle).
+    `select` gives the GPs of some angles. With a `mean_model`, L* = c₀ + c₁·L*_mean + GP([unit θ, standardised L*_mean at `mean_features`]).
     """
 
     X: Float[Array, "n q"]
@@ -123,6 +124,7 @@ class Emulator(ForwardModel):
     held_out_loo_rms: tuple[float, ...] = eqx.field(static=True, default=())
     fit_id: str = eqx.field(static=True, default="")
     n_test: int = eqx.field(static=True, default=0)
+    held_out_max_by_angle: tuple[float, ...] = eqx.field(static=True, default=())
 
     @property
     def parameter_names(self):
@@ -141,7 +143,34 @@ class Emulator(ForwardModel):
         return np.sqrt((n_train * np.asarray(self.held_out_loo_rms) ** 2 + n_test * held**2) / (n_train + n_test))
 
     def fingerprint(self):
-        return f"Emulator({self.key},{hashlib.sha256(self.fit_id.encode()).hexdigest()[:12]})"
+        return f"Emulator({self.key},{hashlib.sha256(self.fit_id.encode()).hexdigest()[:12]},{list(self.angles)})"
+
+    def select(self, angles, mean: Restricted | None = None) -> Emulator:
+        """The GPs of some of the angles, in the order given: the arrays sliced, so the predictions and
+        errors there are this emulator's, bit for bit. With a mean model, `mean` is the same model at
+        `angles` (a `Restricted` of the same parameters), which must include the GP features' angles."""
+        want = tuple(float(a) for a in angles)
+        if not want or len(set(want)) != len(want) or not set(want) <= set(self.angles):
+            raise ValueError(f"angles must be distinct angles of this emulator, {list(self.angles)}, got {list(angles)}")
+        idx = [self.angles.index(a) for a in want]
+        rows = np.array(idx)
+
+        def pick(values):
+            return tuple(float(values[i]) for i in idx) if len(values) else ()
+
+        by_angle = pick(self.held_out_max_by_angle)
+        out = {"alpha": self.alpha[rows], "hyper": self.hyper[rows], "y_mean": self.y_mean[rows], "y_std": self.y_std[rows], "angles": want,
+               "held_out_rms": pick(self.held_out_rms), "held_out_loo_rms": pick(self.held_out_loo_rms), "held_out_max_by_angle": by_angle,
+               "held_out_max": max(by_angle) if by_angle else self.held_out_max}
+        if self.mean_model is not None:
+            feature_angles = [self.angles[i] for i in self.mean_features]
+            if (mean is None or tuple(float(a) for a in mean.model.aspecular_deg) != want or tuple(mean.names) != self.spec.names
+                    or tuple(int(c) for c in mean._cols) != self.mean_cols or tuple(float(v) for v in mean._vals) != self.mean_vals):
+                raise ValueError(f"select needs the same mean model at the angles {list(want)} (parameters {self.spec.names}, the same fixed values)")
+            if not set(feature_angles) <= set(want):
+                raise ValueError(f"the angles must include those of the GP features, {feature_angles}, got {list(want)}")
+            out |= {"mean_model": mean.model, "mean_coef": self.mean_coef[rows], "mean_features": tuple(want.index(a) for a in feature_angles)}
+        return dataclasses.replace(self, **out)
 
     def evaluate(self, theta):
         z = jnp.clip(self.spec.to_unit(theta), 0.0, 1.0)
@@ -349,6 +378,7 @@ def fit_emulator(Z, Y, Zt, Yt, spec, mean, mean_features, angles, source, key) -
     err = np.asarray(em(np.asarray(spec.from_unit(Zt)))) - Yt
     out["held_out_rms"] = np.sqrt(np.mean(err**2, axis=0))
     out["held_out_max"] = float(np.max(np.abs(err)))
+    out["held_out_max_by_angle"] = np.max(np.abs(err), axis=0)
     out["train_seconds"] = time.perf_counter() - t0
     return out
 
@@ -386,6 +416,7 @@ def _emulator_from_arrays(a: dict, spec, angles, source, key, mean=None, mean_fe
         held_out_loo_rms=tuple(float(v) for v in np.asarray(a.get("loo_rms", ()))),
         fit_id=str(a.get("fit_id", "")),
         n_test=int(np.asarray(a["Zt"]).shape[0]) if "Zt" in a else 0,
+        held_out_max_by_angle=tuple(float(v) for v in np.asarray(a.get("held_out_max_by_angle", ()))),
     )
 
 

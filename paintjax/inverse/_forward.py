@@ -1,4 +1,4 @@
-"""Forward maps of the inverse layer: microstructure parameters θ → five-angle L*.
+"""Forward maps of the inverse layer: microstructure parameters θ → L* at the instrument's angles.
 
 A `ForwardModel` names the parameters it consumes (`parameter_names`, a subset of
 `paintjax.inverse._parameters.PARAMETERS`), maps a batch θ (leading dim, columns in that order) to L* at
@@ -16,7 +16,7 @@ likelihood adds (zero for direct models, the held-out error for emulators). Impl
   missing multiple scattering (off unless freed).
 * `CallableForward` – any Python callable (the ray tracer, with common random numbers, i.e. a
   fixed key closed over so its output is a smooth function of θ). Not assumed jit-able. The
-  tracer's callable and its registered emulator ("tracer-emulator") live in `_tracer_forward`.
+  tracer's callable lives in `_tracer_forward`, its registered emulators ("tracer-emulator", "-wide") in `_tracer_emulator`.
 * `Emulator` – a Gaussian-process emulator (Matérn-5/2, ARD, one GP per angle) of any forward
   callable, trained on a scrambled-Sobol design in the parameters' unit cube, with its held-out
   RMS error measured on an independent Latin-hypercube set, pooled with the training design's

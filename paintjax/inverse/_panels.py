@@ -1,19 +1,23 @@
 """Many panels: measured L* rows from a CSV file, one fit (and optionally one posterior) per panel, on Dask.
 
-**Input.** A CSV file with a header: `id`, the L* columns `L15, L25, L45, L75, L110` (the MA98
-in-plane aspecular angles of 45° illumination that the forward models cover; any three or more),
-optional per-angle instrument SDs `sd15, …, sd110` [L*] (default `INSTRUMENT_SD`), and optional
+**Input.** A CSV file with a header: `id`, the L* columns `L-15, L15, L25, L45, L75, L110` (the six
+MA98 in-plane aspecular angles of 45° illumination; any three or more), optional per-angle
+instrument SDs `sd-15, sd15, …, sd110` [L*] (default `INSTRUMENT_SD`), and optional
 known inputs with their SDs, `shape, shape_sd, scale, scale_sd` (tilt law, scale in degrees),
 `sigma, sigma_sd, tau, tau_sd` (roughness, µm) and `pvc, pvc_sd` (for forward models that have it):
 each enters the panel's fit and posterior as a Gaussian term, value ± SD of the true parameter.
 An empty cell leaves that angle or input out of the panel. A bad row (no id, a duplicate id, text
 or NaN in a number, an L* outside [−5, 250], an SD ≤ 0, fewer than three angles, a known input
-without its SD) becomes a row of the results with its error; it never stops the batch. A column the
-models do not cover (e.g. `L-15`), or a known input that is not a free parameter of the fit, is an
-error for the whole file.
+without its SD) becomes a row of the results with its error; it never stops the batch. A column that
+is not one of these (e.g. `L80`, an angle of 15° illumination), L* at an angle the forward model does
+not give (−15° with "tracer-emulator": only "tracer-emulator-wide" and the analytic models give it), or
+a known input that is not a free parameter of the fit, is an error for the whole file.
+
+**Angles.** A panel with L* at −15° is fitted with the forward model at all six angles; the others at
+the standard five, so their numbers are those of a five-angle fit. Angles without L* have weight 0.
 
 **Output.** One row per panel (`fit_panel`): least-squares estimates with SDs, χ², dof, p-value,
-box-edge flags and the fitted L*; with a posterior also 5/50/95 % quantiles, R-hat, bulk ESS, the
+box-edge flags and the fitted L* (`L15_fit`, …; `L-15_fit` for a panel fitted at six angles); with a posterior also 5/50/95 % quantiles, R-hat, bulk ESS, the
 posterior-predictive p-value, the posterior's box-edge flags and each known input's shift (z).
 `fit_panels` writes the table as CSV and NetCDF (one `panel` dimension) and a figure per panel.
 
@@ -39,8 +43,10 @@ import numpy as np
 
 from .._io import atomic_path, nearest_existing
 
-#: Aspecular angles a panel may give (45° illumination, the forward models' angles).
-PANEL_ANGLES = (15, 25, 45, 75, 110)
+#: Aspecular angles a panel may give (MA98, 45° illumination): −15° and the standard five.
+PANEL_ANGLES = (-15, 15, 25, 45, 75, 110)
+#: The standard five, at which every panel is fitted.
+STANDARD_ANGLES = (15, 25, 45, 75, 110)
 #: Fewest angles of a panel.
 MIN_ANGLES = 3
 #: Parameters a row may give as known inputs (`name`, `name_sd` columns).
@@ -58,7 +64,7 @@ def read_panels(path, *, instrument_sd: float = 0.3) -> tuple[list[dict], list[d
         instrument_sd: SD of an angle without its own `sd` column or cell [L*].
 
     Returns:
-        (panels, bad): panels as {"id", "L_star" (5,) with NaN where absent, "sd" (5,), "known"
+        (panels, bad): panels as {"id", "L_star" (6,) at `PANEL_ANGLES` with NaN where absent, "sd" (6,), "known"
         {name: (value, sd)}}; bad rows as {"id", "row", "status": "error", "error"}; `row` counts data
         rows from 1.
 
@@ -80,7 +86,7 @@ def read_panels(path, *, instrument_sd: float = 0.3) -> tuple[list[dict], list[d
     unknown = [c for c in columns if c not in allowed]
     if unknown:
         raise ValueError(f"data columns {unknown} are not modelled: the columns are id, "
-                         f"{', '.join(f'L{a}' for a in PANEL_ANGLES)}, optional sd15 … sd110 (45° illumination) and optional known "
+                         f"{', '.join(f'L{a}' for a in PANEL_ANGLES)}, optional sd-15 … sd110 (45° illumination) and optional known "
                          f"inputs {', '.join(KNOWN_INPUTS)} with their *_sd")
     if not any(f"L{a}" in columns for a in PANEL_ANGLES):
         raise ValueError(f"data has no L* column ({', '.join(f'L{a}' for a in PANEL_ANGLES)})")
@@ -125,6 +131,17 @@ def read_panels(path, *, instrument_sd: float = 0.3) -> tuple[list[dict], list[d
     return panels, bad
 
 
+def check_angles(panels: list[dict], forward: str) -> None:
+    """ValueError, naming the model and the angles, where panels give L* at angles the forward model does not give."""
+    from ._registry import forward_angles
+
+    covered = forward_angles(forward)
+    missing = [a for j, a in enumerate(PANEL_ANGLES) if a not in covered and any(np.isfinite(p["L_star"][j]) for p in panels)]
+    if missing:
+        raise ValueError(f"data columns {[f'L{a}' for a in missing]} hold L* at {', '.join(f'{a}°' for a in missing)}, which the forward model "
+                         f"{forward!r} does not give (it gives {', '.join(f'{a:g}°' for a in covered)}; 'tracer-emulator-wide' gives -15° too)")
+
+
 def _number(text: str, column: str) -> float:
     try:
         v = float(text)
@@ -166,12 +183,16 @@ def fit_panel(panel: dict, forward: str, free: Sequence[str], n_starts: int, see
     from ._fit import fit_least_squares
     from ._registry import make_forward
 
-    key = (forward, tuple(free))
+    L = np.asarray(panel["L_star"], float)
+    angles = tuple(a for a, x in zip(PANEL_ANGLES, L) if a in STANDARD_ANGLES or np.isfinite(x))
+    cols = [PANEL_ANGLES.index(a) for a in angles]
+    key = (forward, tuple(free), angles)
     if key not in _FORWARDS:  # once per worker process; XLA compilations persist across workers and runs
         enable_compilation_cache()
-        _FORWARDS[key] = make_forward(forward, tuple(free), {})
+        extra = {} if angles == STANDARD_ANGLES else {"angles": angles}
+        _FORWARDS[key] = make_forward(forward, tuple(free), {}, **extra)
     fwd = _FORWARDS[key]
-    L, sd = np.asarray(panel["L_star"], float), np.asarray(panel["sd"], float)
+    L, sd = L[cols], np.asarray(panel["sd"], float)[cols]
     have = np.isfinite(L)
     names = [n for n in free if n in fwd.parameter_names]
     known = dict(panel.get("known") or {})
@@ -181,14 +202,14 @@ def fit_panel(panel: dict, forward: str, free: Sequence[str], n_starts: int, see
            "p_value": fr.p_value, "at_bound": ";".join(fr.at_bound), "settings": settings_key(forward, free, n_starts, seed, posterior)}
     for name in fr.values:
         out[name], out[f"{name}_sd"] = float(fr.values[name]), float(fr.stderr[name])
-    for j, a in enumerate(PANEL_ANGLES):
+    for j, a in enumerate(angles):
         out[f"L{a}_fit"] = float(fr.L_star_fit[j])
     if posterior:
-        out |= _panel_posterior(fwd, names, L, sd, have, known, fr, posterior, seed)
+        out |= _panel_posterior(fwd, names, L, sd, have, known, fr, posterior, seed, angles)
     return out
 
 
-def _panel_posterior(fwd, names, L, sd, have, known, fr, settings: dict, seed: int) -> dict:
+def _panel_posterior(fwd, names, L, sd, have, known, fr, settings: dict, seed: int, angles) -> dict:
     """The posterior columns of a panel's row (see `fit_panel`)."""
     import arviz as az
 
@@ -207,7 +228,7 @@ def _panel_posterior(fwd, names, L, sd, have, known, fr, settings: dict, seed: i
            "posterior_edge": ";".join(f"{n}:{side}" for n, side in pr.at_edge.items())}
     for name in list(pr.names) + (["mean_tilt"] if "mean_tilt" in pr.q50 else []):
         out[f"{name}_q05"], out[f"{name}_q50"], out[f"{name}_q95"] = pr.q05[name], pr.q50[name], pr.q95[name]
-    for j, a in enumerate(PANEL_ANGLES):
+    for j, a in enumerate(angles):
         out[f"L{a}_q05"], out[f"L{a}_q95"] = float(check["L_star_q05"][j]), float(check["L_star_q95"][j])
     if inputs is not None:
         for name, v in inputs.shift_table({n: pr.draws(n) for n in pr.names}).items():
@@ -285,15 +306,16 @@ def panel_figure(panel: dict, row: dict, path) -> None:
 
     from .._io import atomic_savefig
 
-    a = np.asarray(PANEL_ANGLES, float)
+    fitted = [x for x in PANEL_ANGLES if row.get(f"L{x}_fit") not in (None, "")]  # the angles of the panel's model
+    a = np.asarray(fitted, float)
     fig, ax = plt.subplots(figsize=(4.6, 3.4))
-    if f"L{PANEL_ANGLES[0]}_q05" in row:
-        lo = [float(row[f"L{x}_q05"]) for x in PANEL_ANGLES]
-        hi = [float(row[f"L{x}_q95"]) for x in PANEL_ANGLES]
+    if f"L{fitted[0]}_q05" in row:
+        lo = [float(row[f"L{x}_q05"]) for x in fitted]
+        hi = [float(row[f"L{x}_q95"]) for x in fitted]
         ax.fill_between(a, lo, hi, color="C0", alpha=0.25, label="posterior predictive 90 %")
-    ax.plot(a, [float(row[f"L{x}_fit"]) for x in PANEL_ANGLES], "-", color="C0", label="least squares")
+    ax.plot(a, [float(row[f"L{x}_fit"]) for x in fitted], "-", color="C0", label="least squares")
     L = np.asarray(panel["L_star"], float)
-    ax.errorbar(a, L, yerr=2 * np.asarray(panel["sd"], float), fmt="o", color="k", ms=4, capsize=2, label="measured ± 2 SD")
+    ax.errorbar(np.asarray(PANEL_ANGLES, float), L, yerr=2 * np.asarray(panel["sd"], float), fmt="o", color="k", ms=4, capsize=2, label="measured ± 2 SD")
     ax.set_xlabel("aspecular angle [°]")
     ax.set_ylabel("L*")
     ax.set_title(f"{row['id']}: χ² {float(row['chi2']):.3g} for {int(row['dof'])} dof", fontsize=9)
@@ -368,6 +390,7 @@ def fit_panels(
     stray = sorted({n for p in panels for n in p["known"]} - set(free))
     if stray:
         raise ValueError(f"data columns {stray} are known inputs of parameters that are not free in this fit (free: {', '.join(free)})")
+    check_angles(panels, forward)
     key = settings_key(forward, free, n_starts, seed, posterior)
     done = {r["id"]: r for r in read_results(out) if r.get("status") == "ok" and r.get("settings") == key}
     results = {p["id"]: done[p["id"]] for p in panels if p["id"] in done}

@@ -1,6 +1,6 @@
-"""The ray tracer as a forward map of the inverse layer: θ = (shape, scale, σ, τ) → five-angle L*.
+"""The ray tracer as a forward map of the inverse layer: θ = (shape, scale, σ, τ) → L* per MA98 angle.
 
-`TracerLStar` is a plain callable θ (batch, 4) → L* (batch, 5) that runs `paintjax.tracer._trace.trace`
+`TracerLStar` is a plain callable θ (batch, 4) → L* (batch, m) that runs `paintjax.tracer._trace.trace`
 once per row with **common random numbers** (CRN), so that its output is as smooth in θ as a
 Monte Carlo estimate can be:
 
@@ -16,6 +16,12 @@ Monte Carlo estimate can be:
 * *Rays.* A fixed ray count and seed (the tracer's random numbers are a hash of (seed, ray id,
   step)). Discrete events (a ray hitting a platelet edge or not) still make the far angles
   (75°, 110°) spiky; CRN cannot remove those.
+* *Angles.* The five standard angles (15°, 25°, 45°, 75°, 110°) are traced together; other in-plane
+  angles of 45° illumination (`TracerSettings.extra_aspecular`, e.g. MA98's −15°) in a second pass
+  with the same seed: the same array and the same paths, the detector's own shadow-roulette draws.
+  The tracer draws each detector's roulette uniform by its position among the detectors, so adding
+  −15° to the first pass would move the others' draws (by ≤ 0.006 L* at two design points); in its own
+  pass it leaves the five angles' L* bit for bit as they were.
 * *Platelet BRDF.* σ and τ enter through the PCHIP-interpolated grid of platelet tables
   (`paintjax.brdf._table.platelet_brdf_grid`, log σ × log τ, built once per process and cached
   table by table), so the BRDF is a continuous, piecewise-smooth function of (σ, τ). Default `table_source="wave"`: the
@@ -26,20 +32,8 @@ Monte Carlo estimate can be:
 Otherwise the physics of `paintjax simulate --brdf wave` (flat clearcoat 50 µm, n = 1.5, primer
 albedo 0.3, PVC 20 %, the samples' size law, zero detector apertures), on a 400 µm tile (about
 1400 platelets; the CLI uses 752 µm) at 65 536 rays per evaluation (`TracerSettings`).
-
-Registered as ``"tracer-emulator"`` (`paintjax fit --forward tracer-emulator`): a Gaussian-process
-emulator (`paintjax.inverse._forward.build_emulator`) of `TracerLStar` over the prior box `TRACER_BOX`
-(96 training + 24 held-out tracer runs), built once and cached under a content hash, design
-evaluations check-pointed. It is physics-informed: per angle the GP models the tracer minus a
-linear function of the analytic single-scatter L* (`AnalyticForward`, diffuse 0), and the
-analytic L* at 15°, 25°, 45° are extra GP inputs; against a plain GP on the same design this cuts
-the held-out/leave-one-out error at 15° and 25° by about a third and leaves 45–110° unchanged
-(`experiments/build_tracer_emulator.py` records both). Its `error_sd` is the emulator's
-cross-validated RMS against the same CRN tracer (the 24 held-out errors pooled with the 96
-leave-one-out errors; `Emulator.error_sd`) combined in quadrature with the **CRN-vs-independent spread**: the RMS difference between
-the CRN evaluation and independent tracer runs (fresh generator arrays and rays, seeds ≠ the CRN
-seed) at `SPREAD_THETA` (`seed_spread`) — the error of one finite tile and ray count against
-another realisation, including the transport's bias.
+Its registered Gaussian-process emulators ("tracer-emulator", "tracer-emulator-wide") are in
+`paintjax.inverse._tracer_emulator`.
 
 Prior box (`TRACER_BOX`, log-uniform in each): shape 1.2–8, scale 0.7–4°, σ 0.02–0.09 µm,
 τ 0.45–1.8 µm. Chosen from physics, not from the measured answers: mean tilts shape × scale from
@@ -62,10 +56,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
-from collections.abc import Mapping, Sequence
-from pathlib import Path
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -104,6 +96,8 @@ class TracerSettings:
         reverse_share: `TracerOptions.reverse_share` (default 0: the forward tracer alone, as the
             emulator's design was built and validated; the CRN noise enters its error model, and
             the bidirectional passes would cost ≈ 2.5× per run).
+        extra_aspecular: aspecular angles [deg] besides the standard five (45° illumination, e.g. −15),
+            traced in a second pass with the same seed (see the module docstring).
     """
 
     sample: str = "silver1"
@@ -117,6 +111,7 @@ class TracerSettings:
     lanes: int = 2048
     batches: int = 32
     reverse_share: float = 0.0
+    extra_aspecular: tuple[float, ...] = ()
 
     def __post_init__(self):
         if int(self.rays) < 1:
@@ -127,6 +122,21 @@ class TracerSettings:
             lo, hi, n = getattr(self, name)
             if not (0 < lo < hi) or int(n) < 1:
                 raise ValueError(f"{name} must be (lower, upper, count) with 0 < lower < upper and count >= 1, got {getattr(self, name)!r}")
+        from ..instrument._geometry import MAX_POLAR_DEG, STANDARD_ASPECULAR
+
+        extra = tuple(float(a) for a in self.extra_aspecular)
+        if (len(set(extra)) != len(extra) or set(extra) & set(STANDARD_ASPECULAR)
+                or not all(abs(45.0 - a) <= MAX_POLAR_DEG for a in extra)):
+            raise ValueError(f"extra_aspecular must be distinct aspecular angles in [{45 - MAX_POLAR_DEG:g}, {45 + MAX_POLAR_DEG:g}] "
+                             f"other than the standard {list(STANDARD_ASPECULAR)}, got {list(self.extra_aspecular)}")
+        object.__setattr__(self, "extra_aspecular", extra)
+
+    @property
+    def aspecular(self) -> tuple[float, ...]:
+        """Every angle this tracer gives (the standard five and the extra ones), ascending."""
+        from ..instrument._geometry import STANDARD_ASPECULAR
+
+        return tuple(sorted(STANDARD_ASPECULAR + self.extra_aspecular))
 
     def nodes(self, name: str) -> np.ndarray:
         lo, hi, n = getattr(self, f"{name}_nodes")
@@ -139,6 +149,8 @@ class TracerSettings:
         d = dataclasses.asdict(self) | {"version": TRACER_FORWARD_VERSION, "table_version": TABLE_VERSION}
         if d["reverse_share"] == 0.0:  # the forward tracer, as before the option existed: same key
             del d["reverse_share"]
+        if not d["extra_aspecular"]:  # the five standard angles alone, as before: same key
+            del d["extra_aspecular"]
         return "TracerLStar" + json.dumps(d, sort_keys=True)
 
 
@@ -148,7 +160,7 @@ REFERENCE_TILT = (2.0, 1.5)
 
 
 class TracerLStar:
-    """Callable θ (batch, 4) [shape, scale, σ µm, τ µm] → five-angle L* (batch, 5) through the tracer.
+    """Callable θ (batch, 4) [shape, scale, σ µm, τ µm] → L* (batch, m) at `angles` through the tracer.
 
     Common random numbers: every row uses the array seed and the ray seed `settings.seed` (or the
     `seed` argument). The BRDF grid is built (or read from the disk cache) on first use.
@@ -156,21 +168,48 @@ class TracerLStar:
     Arguments:
         settings: `TracerSettings`.
         progress: print one line per evaluation.
+        angles: output angles, some of `settings.aspecular` (default all); only the passes that
+            hold them are traced, and an angle's L* does not depend on which others are asked.
     """
 
-    def __init__(self, settings: TracerSettings | None = None, *, progress: bool = False):
+    def __init__(self, settings: TracerSettings | None = None, *, progress: bool = False, angles=None):
         self.settings = settings or TracerSettings()
         self.progress = bool(progress)
+        covered = self.settings.aspecular
+        self.angles = covered if angles is None else tuple(float(a) for a in angles)
+        if not self.angles or len(set(self.angles)) != len(self.angles) or not set(self.angles) <= set(covered):
+            raise ValueError(f"angles must be distinct angles of {list(covered)} (TracerSettings.extra_aspecular adds others), got {angles!r}")
         self._grid = None
         self._sample = None
         self._reference = {}
+        self._views, self._parent = {}, None
         self.evaluations = 0
         self.seconds = 0.0
 
     def __reduce__(self):
         # Pickled (e.g. into Dask tasks) as a reference: the receiving process keeps one instance per
         # settings (`shared_tracer`), so its BRDF grid, arrays and compiled tracer are built once there.
-        return (shared_tracer, (self.settings, self.progress))
+        return (shared_tracer, (self.settings, self.progress, self.angles))
+
+    def with_angles(self, angles) -> TracerLStar:
+        """The same tracer (settings, BRDF grid, arrays) at other output angles (one instance per angles)."""
+        key = tuple(float(a) for a in angles)
+        if key not in self._views:
+            out = TracerLStar(self.settings, progress=self.progress, angles=key)
+            out._sample, out._reference, out._parent = self._sample, self._reference, self
+            self._views[key] = out
+        return self._views[key]
+
+    def passes(self) -> list[tuple[tuple[float, ...], list[int], list[int]]]:
+        """The tracer runs per θ: (angles traced together, their output columns, their places in the run)."""
+        from ..instrument._geometry import STANDARD_ASPECULAR
+
+        out = []
+        for group in (STANDARD_ASPECULAR, self.settings.extra_aspecular):
+            hit = [a for a in group if a in self.angles]
+            if hit:
+                out.append((tuple(group), [self.angles.index(a) for a in hit], [group.index(a) for a in hit]))
+        return out
 
     # -- lazily built pieces -------------------------------------------------------------------
     @property
@@ -183,6 +222,8 @@ class TracerLStar:
 
     def brdf_grid(self):
         """The (σ, τ) grid of platelet BRDF tables (built or read from the cache once)."""
+        if self._grid is None and self._parent is not None:
+            self._grid = self._parent.brdf_grid()
         if self._grid is None:
             from ..brdf._grid import platelet_brdf_grid
 
@@ -273,8 +314,9 @@ class TracerLStar:
 
     # -- evaluation ----------------------------------------------------------------------------
     def trace_one(self, shape: float, scale: float, sigma: float, tau: float, *, seed: int | None = None, rays: int | None = None,
-                  mode: str = "crn"):
-        """One tracer run at θ (array by `mode`, see `array`); returns the `TraceResult`."""
+                  mode: str = "crn", aspecular=None):
+        """One tracer run at θ (array by `mode`, see `array`) with detectors at `aspecular` (default the
+        standard five); returns the `TraceResult`."""
         from ..instrument._geometry import STANDARD_ASPECULAR, ma98_geometry
         from ..microstructure._grid import build_grid
         from ..tracer._options import TracerOptions
@@ -286,33 +328,34 @@ class TracerLStar:
         array = self.array(shape, scale, seed, mode)
         grid = build_grid(array)
         brdf = self.brdf_grid().at(float(sigma), float(tau))
-        geometry = ma98_geometry(45.0, STANDARD_ASPECULAR, detector_aperture_deg=0.0)
+        geometry = ma98_geometry(45.0, STANDARD_ASPECULAR if aspecular is None else aspecular, detector_aperture_deg=0.0)
         return trace(array, geometry, brdf, grid=grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness,
                      primer_albedo=st.primer_albedo, rays=int(st.rays if rays is None else rays), seed=seed,
                      options=TracerOptions(lanes=st.lanes, batches=st.batches, reverse_share=st.reverse_share))
 
     def evaluate(self, theta, *, seed: int | None = None, return_se: bool = False, mode: str = "crn"):
-        """L* (batch, 5) for θ (batch, 4); with `return_se` also the tracer's batch-means SE.
+        """L* (batch, m) at `angles` for θ (batch, 4); with `return_se` also the tracer's batch-means SE.
         `mode` "crn" (default, smooth in θ) or "rsa" (fresh generator array per θ)."""
         from ..tracer._options import EnergyCreationError
 
         t = self.check(theta)
-        L = np.empty((t.shape[0], 5))
-        se = np.empty((t.shape[0], 5))
+        L = np.empty((t.shape[0], len(self.angles)))
+        se = np.empty_like(L)
         for i, row in enumerate(t):
             t0 = time.perf_counter()
-            try:
-                r = self.trace_one(*row, seed=seed, mode=mode)
-            except EnergyCreationError as err:
-                raise EnergyCreationError(f"the platelet BRDF at sigma={row[2]:.4g}, tau={row[3]:.4g} µm: {err}; narrow the (sigma, tau) "
-                                          "box") from None
-            L[i], se[i] = r.L_star, r.L_star_se
+            for group, cols, places in self.passes():
+                try:
+                    r = self.trace_one(*row, seed=seed, mode=mode, aspecular=group)
+                except EnergyCreationError as err:
+                    raise EnergyCreationError(f"the platelet BRDF at sigma={row[2]:.4g}, tau={row[3]:.4g} µm: {err}; narrow the (sigma, "
+                                              "tau) box") from None
+                L[i, cols], se[i, cols] = np.asarray(r.L_star)[places], np.asarray(r.L_star_se)[places]
             dt = time.perf_counter() - t0
             self.evaluations += 1
             self.seconds += dt
             if self.progress:
-                print(f"  tracer θ=({', '.join(f'{v:.4g}' for v in row)}): L* {np.round(r.L_star, 1).tolist()} "
-                      f"± {np.round(r.L_star_se, 2).tolist()} ({dt:.1f} s)", flush=True)
+                print(f"  tracer θ=({', '.join(f'{v:.4g}' for v in row)}): L* {np.round(L[i], 1).tolist()} "
+                      f"± {np.round(se[i], 2).tolist()} ({dt:.1f} s)", flush=True)
         return (L, se) if return_se else L
 
     def __call__(self, theta):
@@ -331,18 +374,21 @@ def seed_spread(fn: TracerLStar, theta: Sequence[Sequence[float]], seeds: Sequen
     kind "tracer-seed-spread").
 
     Returns:
-        dict with "sd" (5,), "seed_sd" (5,), "L" (rows, seeds, 5), "se", "L_crn" (rows, 5), "theta", "seeds".
+        dict with "sd" (m,), "seed_sd" (m,), "L" (rows, seeds, m), "se", "L_crn" (rows, m), "theta", "seeds" (m = len(fn.angles)).
     """
     from .._cache import cached_arrays
+    from ..instrument._geometry import STANDARD_ASPECULAR
 
     theta = np.atleast_2d(np.asarray(theta, float))
     seeds = [int(s) for s in seeds]
     if len(seeds) < 2 or fn.settings.seed in seeds:
         raise ValueError(f"seed_spread needs at least two seeds, all different from the CRN seed {fn.settings.seed}")
     inputs = {"identity": fn.settings.identity(), "theta": theta, "seeds": seeds, "version": 2}
+    if fn.angles != STANDARD_ASPECULAR:  # the five standard angles keep their key
+        inputs["angles"] = list(fn.angles)
 
     def build():
-        L = np.empty((theta.shape[0], len(seeds), 5))
+        L = np.empty((theta.shape[0], len(seeds), len(fn.angles)))
         se = np.empty_like(L)
         for j, s in enumerate(seeds):
             L[:, j], se[:, j] = fn.evaluate(theta, seed=s, return_se=True, mode="rsa")
@@ -358,11 +404,11 @@ def seed_spread(fn: TracerLStar, theta: Sequence[Sequence[float]], seeds: Sequen
 _SHARED: dict = {}
 
 
-def shared_tracer(settings: TracerSettings, progress: bool = False) -> TracerLStar:
-    """This process's `TracerLStar` for these settings (created on first use). A process that receives
-    one through pickling (a Dask worker) runs in float64, as the CLI does, and uses the persistent
+def shared_tracer(settings: TracerSettings, progress: bool = False, angles=None) -> TracerLStar:
+    """This process's `TracerLStar` for these settings and angles (created on first use). A process that
+    receives one through pickling (a Dask worker) runs in float64, as the CLI does, and uses the persistent
     compilation cache."""
-    key = (settings.identity(), bool(progress))
+    key = (settings.identity(), bool(progress), None if angles is None else tuple(angles))
     if key not in _SHARED:
         import jax
 
@@ -370,177 +416,15 @@ def shared_tracer(settings: TracerSettings, progress: bool = False) -> TracerLSt
 
         jax.config.update("jax_enable_x64", True)
         enable_compilation_cache()
-        _SHARED[key] = TracerLStar(settings, progress=progress)
+        _SHARED[key] = TracerLStar(settings, progress=progress, angles=angles)
     return _SHARED[key]
 
 
-#: θ rows and seeds of the seed-spread measurement of the registered model (inside `TRACER_BOX`:
-#: a well-aligned and a poorly aligned paint, moderate roughness); seeds differ from the CRN seed 0.
-SPREAD_THETA = ((2.0, 1.5, 0.06, 0.7), (4.0, 2.5, 0.09, 0.5))
-#: Output columns (15°, 25°, 45°) of the analytic single-scatter model used as extra GP inputs of the
-#: tracer emulator: there single scattering carries the signal; at 75°/110° it predicts almost nothing.
-ANALYTIC_FEATURES = (0, 1, 2)
-SPREAD_SEEDS = (101, 102, 103, 104, 105)
-
-
-def tracer_emulator(
-    free: Sequence[str] = TRACER_PARAMETERS,
-    fixed: Mapping[str, float] | None = None,
-    bounds: Mapping[str, tuple[float, float]] | None = None,
-    *,
-    settings: TracerSettings | None = None,
-    cache_dir="default",
-    n_train: int = 96,
-    n_test: int = 24,
-    seed: int = 0,
-    batch: int = 4,
-    spread_theta=SPREAD_THETA,
-    spread_seeds=SPREAD_SEEDS,
-    progress: bool = False,
-    analytic_mean: bool = True,
-    client=None,
-    **kw,
-):
-    """Factory of the registered ``"tracer-emulator"``: a GP emulator of `TracerLStar` (cached).
-
-    Arguments:
-        free: free parameters (those of the tracer are kept: shape, scale, sigma, tau; others such
-            as "diffuse" or "discrepancy" are not inputs of this model and are ignored).
-        fixed: values for tracer parameters that are not free (registered defaults otherwise).
-        bounds: box overrides (default `TRACER_BOX`).
-        settings: `TracerSettings` of the tracer runs.
-        cache_dir: emulator cache folder ("default": `default_cache_dir()/emulators`); the BRDF
-            tables and the seed-spread record live in the array cache (`$PAINTJAX_CACHE`).
-        n_train, n_test, seed, batch: design of `build_emulator`.
-        spread_theta, spread_seeds: where and with which seeds the seed-to-seed spread is measured
-            (None: not measured, `error_sd` is the cross-validated RMS alone).
-        progress: progress bar over the design and one line per tracer run.
-        analytic_mean: physics-informed GP (default): the analytic single-scatter model
-            (`AnalyticForward`, diffuse 0) is the linear prior mean per angle and its L* at 15°,
-            25°, 45° (`ANALYTIC_FEATURES`) are extra GP inputs; False: a plain GP over θ.
-        client: a Dask `distributed.Client`: the design's tracer runs are tasks on its workers (each
-            worker builds its BRDF grid and compiles the tracer once, `shared_tracer`).
-
-    Returns:
-        `TracerEmulator` (an `Emulator` whose `error_sd` includes the seed-to-seed spread).
-    """
-    from ._analytic import AnalyticForward
-    from ._emulator import build_emulator
-    from ._forward import CallableForward
-    from ._parameters import make_spec
-
-    names = tuple(n for n in free if n in TRACER_PARAMETERS)
-    if not names:
-        raise ValueError(f"the tracer emulator needs at least one of {', '.join(TRACER_PARAMETERS)} free")
-    fixed = {k: float(v) for k, v in (fixed or {}).items() if k in TRACER_PARAMETERS}
-    box = {n: tuple(TRACER_BOX[n]) for n in names}
-    box.update({k: tuple(v) for k, v in (bounds or {}).items() if k in names})
-    spec = make_spec(names, box)
-    fn = TracerLStar(settings, progress=progress)
-    # Tracer parameters held fixed default to the box's log-centre, not to the measured values.
-    held = {n: fixed.get(n, math.sqrt(TRACER_BOX[n][0] * TRACER_BOX[n][1])) for n in TRACER_PARAMETERS if n not in names}
-    model = CallableForward(fn, TRACER_PARAMETERS, fn.settings.identity()).restrict(names, held)
-    t0 = time.perf_counter()
-    # a coarse quadrature (24 × 16 nodes: L* within 0.01 of the default 64 × 48, 3× cheaper) keeps MCMC fast
-    mean = AnalyticForward(tilt_nodes=24, azimuth_nodes=16).restrict(names, held | {"diffuse": 0.0}) if analytic_mean else None
-    em = build_emulator(model, spec, n_train=n_train, n_test=n_test, seed=seed, cache_dir=cache_dir, batch=batch, progress=progress,
-                        mean=mean, mean_features=ANALYTIC_FEATURES if analytic_mean else (), client=client)
-    build_seconds = time.perf_counter() - t0
-    spread = None
-    if spread_theta is not None:
-        array_cache = None
-        if cache_dir not in ("default", None):
-            array_cache = Path(cache_dir)
-        spread = seed_spread(fn, spread_theta, spread_seeds, cache_dir=array_cache)
-    return _wrap(em, spread, build_seconds=build_seconds, evaluations=fn.evaluations, direct=fn)
-
-
-#: Emulator key → build/error information and the direct tracer callable (for `emulator_check`).
-_INFO: dict[str, dict] = {}
-_DIRECT: dict[str, TracerLStar] = {}
-
-
-def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, direct: TracerLStar):
-    from ._emulator import Emulator
-
-    class_ = _tracer_emulator_class()
-    fields = {f.name: getattr(em, f.name) for f in dataclasses.fields(Emulator)}
-    sd = () if spread is None else tuple(float(v) for v in np.asarray(spread["sd"]))
-    out = class_(**fields, seed_spread_sd=sd)
-    _INFO[em.key] = {
-        "held_out_rms_crn": list(em.held_out_rms),
-        "loo_rms_crn": list(em.held_out_loo_rms),
-        "cv_rms_crn": np.asarray(Emulator.error_sd.fget(em)).tolist(),
-        "held_out_max": em.held_out_max,
-        "seed_spread_sd": list(sd) or None,
-        "seed_spread_L": None if spread is None else np.asarray(spread["L"]).tolist(),
-        "seed_spread_L_crn": None if spread is None else np.asarray(spread["L_crn"]).tolist(),
-        "seed_sd_independent": None if spread is None else np.asarray(spread["seed_sd"]).tolist(),
-        "error_sd": np.asarray(out.error_sd).tolist(),
-        "build_seconds_this_call": build_seconds,
-        "tracer_evaluations_this_call": evaluations,
-        "key": em.key,
-    }
-    _DIRECT[em.key] = direct
-    return out
-
-
-_CLASS = None
-
-
-def _tracer_emulator_class():
-    """`TracerEmulator`: an `Emulator` whose `error_sd` is cross-validated RMS ⊕ seed-to-seed spread
-    (defined lazily so importing this module does not import the forward layer)."""
-    global _CLASS
-    if _CLASS is None:
-        import equinox as eqx
-
-        from ._emulator import Emulator
-
-        class TracerEmulator(Emulator):
-            """GP emulator of the tracer; `error_sd` = sqrt(cross-validated RMS² + seed-to-seed spread²)."""
-
-            seed_spread_sd: tuple = eqx.field(static=True, default=())
-
-            @property
-            def error_sd(self):
-                held = Emulator.error_sd.fget(self)
-                if not self.seed_spread_sd:
-                    return held
-                return np.sqrt(held**2 + np.asarray(self.seed_spread_sd) ** 2)
-
-            def fingerprint(self):
-                return f"Tracer{super().fingerprint()},spread={self.seed_spread_sd}"  # the GP fit too, as Emulator's
-
-        _CLASS = TracerEmulator
-    return _CLASS
-
-
-def tracer_info(emulator) -> dict:
-    """Build and error information of a tracer emulator built in this process."""
-    return _INFO[emulator.key]
-
-
-def direct_tracer(emulator) -> TracerLStar:
-    """The direct `TracerLStar` behind a tracer emulator built in this process."""
-    return _DIRECT[emulator.key]
-
-
-#: A box that holds what the published inputs read through their measurement models and what the L*
-#: prefer (`docs/input_measurement.md`), and the BRDF-table grid that spans it (7 × 7 nodes, ratio ≈ 1.4).
-WIDE_TRACER_BOX: dict[str, tuple[float, float]] = {"shape": (1.2, 12.0), "scale": (0.5, 5.0), "sigma": (0.02, 0.15), "tau": (0.25, 2.0)}
-WIDE_TRACER_SETTINGS = TracerSettings(sigma_nodes=(0.02, 0.15, 7), tau_nodes=(0.25, 2.0, 7))
-
-
-def wide_tracer_emulator(free: Sequence[str] = TRACER_PARAMETERS, fixed: Mapping[str, float] | None = None, bounds=None, **kw):
-    """`tracer_emulator` over `WIDE_TRACER_BOX` with `WIDE_TRACER_SETTINGS` (registered as ``"tracer-emulator-wide"``;
-    about 27 min to build on 2 cores, then cached). Its error per angle is 3.3–4.1 L* (held-out RMS 1.9–3.9, largest 15 L*)."""
-    box = dict(WIDE_TRACER_BOX) | dict(bounds or {})
-    return tracer_emulator(free, fixed, box, settings=kw.pop("settings", WIDE_TRACER_SETTINGS), **kw)
-
-
 def register() -> None:
+    """Make the tracer's emulators `--forward` choices (`make_forward`)."""
+    from ..instrument._geometry import ASPECULAR_45
     from ._registry import register_forward
+    from ._tracer_emulator import tracer_emulator, wide_tracer_emulator
 
     register_forward(
         "tracer-emulator",
@@ -551,6 +435,7 @@ def register() -> None:
     register_forward(
         "tracer-emulator-wide",
         wide_tracer_emulator,
-        "'tracer-emulator' over shape 1.2–12, scale 0.5–5°, σ 0.02–0.15 µm, τ 0.25–2 µm (about 27 min to build once; "
-        "error 3.3–4.1 L* per angle)",
+        "'tracer-emulator' over shape 1.2–12, scale 0.5–5°, σ 0.02–0.15 µm, τ 0.25–2 µm, also at −15° (shipped; "
+        "error 3.3–4.1 L* per standard angle, 4.7 at −15°)",
+        angles=ASPECULAR_45,
     )

@@ -1,0 +1,244 @@
+"""The tracer's registered emulators: "tracer-emulator" (`TRACER_BOX`) and "tracer-emulator-wide" (`WIDE_TRACER_BOX`, shipped).
+
+Registered as ``"tracer-emulator"`` (`paintjax fit --forward tracer-emulator`): a Gaussian-process
+emulator (`paintjax.inverse._emulator.build_emulator`) of `TracerLStar` (`paintjax.inverse._tracer_forward`) over the prior box `TRACER_BOX`
+(96 training + 24 held-out tracer runs), built once and cached under a content hash, design
+evaluations check-pointed. It is physics-informed: per angle the GP models the tracer minus a
+linear function of the analytic single-scatter L* (`AnalyticForward`, diffuse 0), and the
+analytic L* at 15°, 25°, 45° are extra GP inputs; against a plain GP on the same design this cuts
+the held-out/leave-one-out error at 15° and 25° by about a third and leaves 45–110° unchanged
+(`experiments/build_tracer_emulator.py` records both). Its `error_sd` is the emulator's
+cross-validated RMS against the same CRN tracer (the 24 held-out errors pooled with the 96
+leave-one-out errors; `Emulator.error_sd`) combined in quadrature with the **CRN-vs-independent spread**: the RMS difference between
+the CRN evaluation and independent tracer runs (fresh generator arrays and rays, seeds ≠ the CRN
+seed) at `SPREAD_THETA` (`seed_spread`) — the error of one finite tile and ray count against
+another realisation, including the transport's bias.
+
+One GP per output angle. "tracer-emulator-wide" is built over the six MA98 in-plane angles of 45°
+illumination (−15° traced in its own pass, `TracerSettings.extra_aspecular`) and gives the standard
+five by default (`angles=` selects, e.g. all six for a panel measured at −15°; `Emulator.select`);
+"tracer-emulator" gives the standard five.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..instrument._geometry import STANDARD_ASPECULAR
+from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerSettings, seed_spread
+
+#: θ rows and seeds of the seed-spread measurement of the registered model (inside `TRACER_BOX`:
+#: a well-aligned and a poorly aligned paint, moderate roughness); seeds differ from the CRN seed 0.
+SPREAD_THETA = ((2.0, 1.5, 0.06, 0.7), (4.0, 2.5, 0.09, 0.5))
+#: Angles whose analytic single-scatter L* are extra GP inputs of the tracer emulator: there single
+#: scattering carries the signal; at 75°/110° it predicts almost nothing.
+ANALYTIC_FEATURE_ANGLES = (15.0, 25.0, 45.0)
+SPREAD_SEEDS = (101, 102, 103, 104, 105)
+
+
+def tracer_emulator(
+    free: Sequence[str] = TRACER_PARAMETERS,
+    fixed: Mapping[str, float] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    *,
+    settings: TracerSettings | None = None,
+    cache_dir="default",
+    n_train: int = 96,
+    n_test: int = 24,
+    seed: int = 0,
+    batch: int = 4,
+    spread_theta=SPREAD_THETA,
+    spread_seeds=SPREAD_SEEDS,
+    progress: bool = False,
+    analytic_mean: bool = True,
+    client=None,
+    angles=STANDARD_ASPECULAR,
+    **kw,
+):
+    """Factory of the registered ``"tracer-emulator"``: a GP emulator of `TracerLStar` (cached).
+
+    Arguments:
+        free: free parameters (those of the tracer are kept: shape, scale, sigma, tau; others such
+            as "diffuse" or "discrepancy" are not inputs of this model and are ignored).
+        fixed: values for tracer parameters that are not free (registered defaults otherwise).
+        bounds: box overrides (default `TRACER_BOX`).
+        settings: `TracerSettings` of the tracer runs.
+        cache_dir: emulator cache folder ("default": `default_cache_dir()/emulators`); the BRDF
+            tables and the seed-spread record live in the array cache (`$PAINTJAX_CACHE`).
+        n_train, n_test, seed, batch: design of `build_emulator`.
+        spread_theta, spread_seeds: where and with which seeds the seed-to-seed spread is measured
+            (None: not measured, `error_sd` is the cross-validated RMS alone).
+        progress: progress bar over the design and one line per tracer run.
+        analytic_mean: physics-informed GP (default): the analytic single-scatter model
+            (`AnalyticForward`, diffuse 0) is the linear prior mean per angle and its L* at 15°,
+            25°, 45° (`ANALYTIC_FEATURE_ANGLES`) are extra GP inputs; False: a plain GP over θ.
+        client: a Dask `distributed.Client`: the design's tracer runs are tasks on its workers (each
+            worker builds its BRDF grid and compiles the tracer once, `shared_tracer`).
+        angles: the output angles, some of `settings.aspecular` (default the standard five, as the
+            reference samples give; with ``extra_aspecular=(-15,)`` also −15°). The emulator is built
+            over every angle of the settings, one GP each; this selects (`Emulator.select`).
+
+    Returns:
+        `TracerEmulator` (an `Emulator` whose `error_sd` includes the seed-to-seed spread).
+    """
+    from ._emulator import build_emulator
+    from ._forward import CallableForward
+    from ._parameters import make_spec
+
+    names = tuple(n for n in free if n in TRACER_PARAMETERS)
+    if not names:
+        raise ValueError(f"the tracer emulator needs at least one of {', '.join(TRACER_PARAMETERS)} free")
+    fixed = {k: float(v) for k, v in (fixed or {}).items() if k in TRACER_PARAMETERS}
+    box = {n: tuple(TRACER_BOX[n]) for n in names}
+    box.update({k: tuple(v) for k, v in (bounds or {}).items() if k in names})
+    spec = make_spec(names, box)
+    fn = TracerLStar(settings, progress=progress)
+    angles = tuple(float(a) for a in angles)
+    missing = [a for a in angles if a not in fn.angles]
+    if missing:
+        raise ValueError(f"this tracer emulator gives L* at {_degrees(fn.angles)}, not at {_degrees(missing)} "
+                         f"('tracer-emulator-wide' also gives -15°)")
+    # Tracer parameters held fixed default to the box's log-centre, not to the measured values.
+    held = {n: fixed.get(n, math.sqrt(TRACER_BOX[n][0] * TRACER_BOX[n][1])) for n in TRACER_PARAMETERS if n not in names}
+    model = CallableForward(fn, TRACER_PARAMETERS, fn.settings.identity(), aspecular_deg=fn.angles).restrict(names, held)
+    t0 = time.perf_counter()
+    mean = _analytic_mean(fn.angles, names, held) if analytic_mean else None
+    features = tuple(fn.angles.index(a) for a in ANALYTIC_FEATURE_ANGLES) if analytic_mean else ()
+    em = build_emulator(model, spec, n_train=n_train, n_test=n_test, seed=seed, cache_dir=cache_dir, batch=batch, progress=progress,
+                        mean=mean, mean_features=features, client=client)
+    build_seconds = time.perf_counter() - t0
+    spread = None
+    if spread_theta is not None:
+        array_cache = None
+        if cache_dir not in ("default", None):
+            array_cache = Path(cache_dir)
+        spread = seed_spread(fn, spread_theta, spread_seeds, cache_dir=array_cache)
+    out = _wrap(em, spread, build_seconds=build_seconds, evaluations=fn.evaluations, direct=fn)
+    if angles != out.angles:
+        out = out.select(angles, _analytic_mean(angles, names, held) if analytic_mean else None)
+    return out
+
+
+def _analytic_mean(angles, names, held):
+    """The physics-informed mean at these angles: the analytic single-scatter model, diffuse 0, on a
+    coarse quadrature (24 × 16 nodes: L* within 0.01 of the default 64 × 48, 3× cheaper, keeps MCMC fast)."""
+    from ..instrument._geometry import ma98_geometry
+    from ._analytic import AnalyticForward
+
+    return AnalyticForward(ma98_geometry(45.0, angles), tilt_nodes=24, azimuth_nodes=16).restrict(names, held | {"diffuse": 0.0})
+
+
+def _degrees(angles) -> str:
+    return ", ".join(f"{a:g}" for a in angles) + "°"
+
+
+#: Emulator key → build/error information and the direct tracer callable (for `emulator_check`).
+_INFO: dict[str, dict] = {}
+_DIRECT: dict[str, TracerLStar] = {}
+
+
+def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, direct: TracerLStar):
+    from ._emulator import Emulator
+
+    class_ = _tracer_emulator_class()
+    fields = {f.name: getattr(em, f.name) for f in dataclasses.fields(Emulator)}
+    sd = () if spread is None else tuple(float(v) for v in np.asarray(spread["sd"]))
+    out = class_(**fields, seed_spread_sd=sd)
+    _INFO[em.key] = {
+        "held_out_rms_crn": list(em.held_out_rms),
+        "loo_rms_crn": list(em.held_out_loo_rms),
+        "cv_rms_crn": np.asarray(Emulator.error_sd.fget(em)).tolist(),
+        "held_out_max": em.held_out_max,
+        "held_out_max_by_angle": list(em.held_out_max_by_angle) or None,
+        "seed_spread_sd": list(sd) or None,
+        "seed_spread_L": None if spread is None else np.asarray(spread["L"]).tolist(),
+        "seed_spread_L_crn": None if spread is None else np.asarray(spread["L_crn"]).tolist(),
+        "seed_sd_independent": None if spread is None else np.asarray(spread["seed_sd"]).tolist(),
+        "error_sd": np.asarray(out.error_sd).tolist(),
+        "build_seconds_this_call": build_seconds,
+        "tracer_evaluations_this_call": evaluations,
+        "key": em.key,
+        "angles": list(em.angles),
+    }
+    _DIRECT[em.key] = direct
+    return out
+
+
+_CLASS = None
+
+
+def _tracer_emulator_class():
+    """`TracerEmulator`: an `Emulator` whose `error_sd` is cross-validated RMS ⊕ seed-to-seed spread
+    (defined lazily so importing this module does not import the forward layer)."""
+    global _CLASS
+    if _CLASS is None:
+        import equinox as eqx
+
+        from ._emulator import Emulator
+
+        class TracerEmulator(Emulator):
+            """GP emulator of the tracer; `error_sd` = sqrt(cross-validated RMS² + seed-to-seed spread²)."""
+
+            seed_spread_sd: tuple = eqx.field(static=True, default=())
+
+            @property
+            def error_sd(self):
+                held = Emulator.error_sd.fget(self)
+                if not self.seed_spread_sd:
+                    return held
+                return np.sqrt(held**2 + np.asarray(self.seed_spread_sd) ** 2)
+
+            def fingerprint(self):
+                return f"Tracer{super().fingerprint()},spread={self.seed_spread_sd}"  # the GP fit too, as Emulator's
+
+            def select(self, angles, mean=None):
+                out = super().select(angles, mean)
+                if not self.seed_spread_sd:
+                    return out
+                return dataclasses.replace(out, seed_spread_sd=tuple(self.seed_spread_sd[self.angles.index(a)] for a in out.angles))
+
+        _CLASS = TracerEmulator
+    return _CLASS
+
+
+def tracer_info(emulator) -> dict:
+    """Build and error information of a tracer emulator built in this process (per-angle entries at its angles)."""
+    info = dict(_INFO[emulator.key])
+    idx = [info["angles"].index(a) for a in emulator.angles]
+    for k in ("held_out_rms_crn", "loo_rms_crn", "cv_rms_crn", "held_out_max_by_angle", "seed_spread_sd", "seed_sd_independent", "error_sd"):
+        if info[k]:
+            info[k] = [info[k][i] for i in idx]
+    for k in ("seed_spread_L", "seed_spread_L_crn"):
+        if info[k] is not None:
+            info[k] = np.asarray(info[k])[..., idx].tolist()
+    if info["held_out_max_by_angle"]:
+        info["held_out_max"] = max(info["held_out_max_by_angle"])
+    return info | {"angles": list(emulator.angles)}
+
+
+def direct_tracer(emulator) -> TracerLStar:
+    """The direct `TracerLStar` behind a tracer emulator built in this process, at the emulator's angles."""
+    fn = _DIRECT[emulator.key]
+    return fn if fn.angles == emulator.angles else fn.with_angles(emulator.angles)
+
+
+#: A box that holds what the published inputs read through their measurement models and what the L*
+#: prefer (`docs/input_measurement.md`), and the BRDF-table grid that spans it (7 × 7 nodes, ratio ≈ 1.4).
+WIDE_TRACER_BOX: dict[str, tuple[float, float]] = {"shape": (1.2, 12.0), "scale": (0.5, 5.0), "sigma": (0.02, 0.15), "tau": (0.25, 2.0)}
+#: Its tracer settings also trace MA98's −15° (a second pass with the same seed; the five standard angles unchanged).
+WIDE_TRACER_SETTINGS = TracerSettings(sigma_nodes=(0.02, 0.15, 7), tau_nodes=(0.25, 2.0, 7), extra_aspecular=(-15.0,))
+
+
+def wide_tracer_emulator(free: Sequence[str] = TRACER_PARAMETERS, fixed: Mapping[str, float] | None = None, bounds=None, **kw):
+    """`tracer_emulator` over `WIDE_TRACER_BOX` with `WIDE_TRACER_SETTINGS` (registered as ``"tracer-emulator-wide"``;
+    21 min to build on 2 Dask workers, longer serially, then cached; shipped). Its error per standard angle is 3.3–4.1 L*
+    (held-out RMS 1.9–3.9, largest 15 L*); at −15° (`angles=`, a sixth GP) 4.7 L* (held-out RMS 6.0, largest 18.9 L*)."""
+    box = dict(WIDE_TRACER_BOX) | dict(bounds or {})
+    return tracer_emulator(free, fixed, box, settings=kw.pop("settings", WIDE_TRACER_SETTINGS), **kw)
+
