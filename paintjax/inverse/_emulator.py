@@ -100,7 +100,8 @@ class Emulator(ForwardModel):
     pooled with the leave-one-out errors of the training design, so that it rests on all
     n_train + n_test runs (the held-out set alone is small); `held_out_rms` and `held_out_loo_rms`
     are the two parts, `held_out_max` the largest held-out error (`held_out_max_by_angle` per angle).
-    `select` gives the GPs of some angles. With a `mean_model`, L* = c₀ + c₁·L*_mean + GP([unit θ, standardised L*_mean at `mean_features`]).
+    `select` gives the GPs of some angles.
+    With a `mean_model`, L* = c₀ + c₁·L*_mean + GP([unit θ, standardised L*_mean at `mean_features`]).
     """
 
     X: Float[Array, "n q"]
@@ -166,10 +167,12 @@ class Emulator(ForwardModel):
             feature_angles = [self.angles[i] for i in self.mean_features]
             if (mean is None or tuple(float(a) for a in mean.model.aspecular_deg) != want or tuple(mean.names) != self.spec.names
                     or tuple(int(c) for c in mean._cols) != self.mean_cols or tuple(float(v) for v in mean._vals) != self.mean_vals):
-                raise ValueError(f"select needs the same mean model at the angles {list(want)} (parameters {self.spec.names}, the same fixed values)")
+                raise ValueError(f"select needs the same mean model at the angles {list(want)} (parameters {self.spec.names}, "
+                                 "the same fixed values)")
             if not set(feature_angles) <= set(want):
                 raise ValueError(f"the angles must include those of the GP features, {feature_angles}, got {list(want)}")
-            out |= {"mean_model": mean.model, "mean_coef": self.mean_coef[rows], "mean_features": tuple(want.index(a) for a in feature_angles)}
+            out |= {"mean_model": mean.model, "mean_coef": self.mean_coef[rows],
+                    "mean_features": tuple(want.index(a) for a in feature_angles)}
         return dataclasses.replace(self, **out)
 
     def evaluate(self, theta):

@@ -17,7 +17,8 @@ a known input that is not a free parameter of the fit, is an error for the whole
 the standard five, so their numbers are those of a five-angle fit. Angles without L* have weight 0.
 
 **Output.** One row per panel (`fit_panel`): least-squares estimates with SDs, χ², dof, p-value,
-box-edge flags and the fitted L* (`L15_fit`, …; `L-15_fit` for a panel fitted at six angles); with a posterior also 5/50/95 % quantiles, R-hat, bulk ESS, the
+box-edge flags and the fitted L* (`L15_fit`, …; `L-15_fit` for a panel fitted at six angles); with a
+posterior also 5/50/95 % quantiles, R-hat, bulk ESS, the
 posterior-predictive p-value, the posterior's box-edge flags and each known input's shift (z).
 `fit_panels` writes the table as CSV and NetCDF (one `panel` dimension) and a figure per panel.
 
@@ -138,8 +139,9 @@ def check_angles(panels: list[dict], forward: str) -> None:
     covered = forward_angles(forward)
     missing = [a for j, a in enumerate(PANEL_ANGLES) if a not in covered and any(np.isfinite(p["L_star"][j]) for p in panels)]
     if missing:
-        raise ValueError(f"data columns {[f'L{a}' for a in missing]} hold L* at {', '.join(f'{a}°' for a in missing)}, which the forward model "
-                         f"{forward!r} does not give (it gives {', '.join(f'{a:g}°' for a in covered)}; 'tracer-emulator-wide' gives -15° too)")
+        raise ValueError(f"data columns {[f'L{a}' for a in missing]} hold L* at {', '.join(f'{a}°' for a in missing)}, which the forward "
+                         f"model {forward!r} does not give (it gives {', '.join(f'{a:g}°' for a in covered)}; 'tracer-emulator-wide' "
+                         "gives -15° too)")
 
 
 def _number(text: str, column: str) -> float:
@@ -315,7 +317,8 @@ def panel_figure(panel: dict, row: dict, path) -> None:
         ax.fill_between(a, lo, hi, color="C0", alpha=0.25, label="posterior predictive 90 %")
     ax.plot(a, [float(row[f"L{x}_fit"]) for x in fitted], "-", color="C0", label="least squares")
     L = np.asarray(panel["L_star"], float)
-    ax.errorbar(np.asarray(PANEL_ANGLES, float), L, yerr=2 * np.asarray(panel["sd"], float), fmt="o", color="k", ms=4, capsize=2, label="measured ± 2 SD")
+    ax.errorbar(np.asarray(PANEL_ANGLES, float), L, yerr=2 * np.asarray(panel["sd"], float), fmt="o", color="k", ms=4, capsize=2,
+                label="measured ± 2 SD")
     ax.set_xlabel("aspecular angle [°]")
     ax.set_ylabel("L*")
     ax.set_title(f"{row['id']}: χ² {float(row['chi2']):.3g} for {int(row['dof'])} dof", fontsize=9)

@@ -30,15 +30,16 @@ def _analytic_kirchhoff(free, fixed, bounds, angles=None, **kw):
 def _analytic_hot_spot(free, fixed, bounds, angles=None, **kw):
     from .._samples import load_sample
 
-    return AnalyticForward(_geometry(angles), hot_spot=HotSpot.for_sample(load_sample("silver1")))  # both reference samples share this layer
+    # both reference samples share this layer
+    return AnalyticForward(_geometry(angles), hot_spot=HotSpot.for_sample(load_sample("silver1")))
 
 
 def _analytic_mirror(free, fixed, bounds, angles=None, **kw):
     return AnalyticForward(_geometry(angles), rough=False)
 
 
-def _analytic_emulator(free, fixed, bounds, *, cache_dir="default", n_train: int = 256, n_test: int = 64, seed: int = 0, progress: bool = False,
-                       angles=None, **kw):
+def _analytic_emulator(free, fixed, bounds, *, cache_dir="default", n_train: int = 256, n_test: int = 64, seed: int = 0,
+                       progress: bool = False, angles=None, **kw):
     from ._parameters import make_spec
 
     base = AnalyticForward(_geometry(angles))

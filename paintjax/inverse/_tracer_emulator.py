@@ -211,7 +211,8 @@ def tracer_info(emulator) -> dict:
     """Build and error information of a tracer emulator built in this process (per-angle entries at its angles)."""
     info = dict(_INFO[emulator.key])
     idx = [info["angles"].index(a) for a in emulator.angles]
-    for k in ("held_out_rms_crn", "loo_rms_crn", "cv_rms_crn", "held_out_max_by_angle", "seed_spread_sd", "seed_sd_independent", "error_sd"):
+    for k in ("held_out_rms_crn", "loo_rms_crn", "cv_rms_crn", "held_out_max_by_angle", "seed_spread_sd", "seed_sd_independent",
+              "error_sd"):
         if info[k]:
             info[k] = [info[k][i] for i in idx]
     for k in ("seed_spread_L", "seed_spread_L_crn"):

@@ -178,7 +178,8 @@ class TracerLStar:
         covered = self.settings.aspecular
         self.angles = covered if angles is None else tuple(float(a) for a in angles)
         if not self.angles or len(set(self.angles)) != len(self.angles) or not set(self.angles) <= set(covered):
-            raise ValueError(f"angles must be distinct angles of {list(covered)} (TracerSettings.extra_aspecular adds others), got {angles!r}")
+            raise ValueError(f"angles must be distinct angles of {list(covered)} (TracerSettings.extra_aspecular adds others), "
+                             f"got {angles!r}")
         self._grid = None
         self._sample = None
         self._reference = {}
