@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from paintjax.cli._main import main
@@ -22,7 +22,7 @@ RANGES = [
     ("lobe", "--sigma", 0.0, 10.0, []),
     ("lobe", "--tau", 0.0, 100.0, []),
     ("lobe", "--wavelength", 0.2, 12.0, []),
-    ("lobe", "--n", 0.0, 5.0, []),
+    ("lobe", "--n", 1.0, 5.0, []),
     ("lobe", "--step", 0.01, 10.0, []),
     ("brdf", "--sigma", 0.0, 10.0, []),
     ("brdf", "--tau", 0.0, 1e3, []),
@@ -103,3 +103,39 @@ def test_edge_valid_microfacet_gives_finite_json(shape, scale, n, reflectance, c
     assert code == 0, captured.err
     out = json.loads(captured.out)
     assert "NaN" not in captured.out and all(v is not None and math.isfinite(v) and v >= 0 for v in out["L_star"])
+
+
+def _finite_numbers(obj) -> bool:
+    if isinstance(obj, dict):
+        return all(_finite_numbers(v) for v in obj.values())
+    if isinstance(obj, list):
+        return all(_finite_numbers(v) for v in obj)
+    return isinstance(obj, (int, float)) and math.isfinite(obj)
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture], derandomize=True)
+@example(wavelength=12.0, n=1.0, sigma=0.051, profiles=2, step=0.01)  # the far corners, whatever the four draws are:
+@example(wavelength=0.2, n=5.0, sigma=1e-4, profiles=1, step=10.0)  # τ and --length set by the grid and the beam
+@given(wavelength=st.sampled_from([0.2, 12.0, 0.5]), n=st.sampled_from([1.0, 5.0, 1.5]), sigma=st.sampled_from([1e-4, 0.051]),
+       profiles=st.sampled_from([1, 2]), step=st.sampled_from([10.0, 0.01]))
+def test_edge_valid_lobe_gives_finite_json_and_its_plot(wavelength, n, sigma, profiles, step, tmp_path_factory, capsys):
+    """`lobe` at the ends of its ranges with the smallest sizes they allow (τ two grid steps, --length the shortest
+    the tapered beam and τ accept): exit 0, standard JSON with every number finite, energy conserved, the plot
+    written whole; or, for a surface the solver cannot converge, one line naming the fix (exit 2)."""
+    import json
+
+    tau = max(0.64, 2.5 * wavelength / (12.0 * n))  # two grid steps of the default grid λ0/(12 n)
+    length = 1.01 * max(4.0 * tau, 20.0 * wavelength / (2.0 * math.pi * n))
+    out = tmp_path_factory.mktemp("lobe")
+    argv = ["lobe", "--wavelength", repr(wavelength), "--n", repr(n), "--sigma", repr(sigma), "--tau", repr(tau), "--length", repr(length),
+            "--profiles", str(profiles), "--step", repr(step), "--json", "--out", str(out)]
+    code = main(argv)
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err and code in (0, 2), (argv, captured.err)
+    if code == 2:
+        assert len(captured.err.strip().splitlines()) == 1 and "not converged" in captured.err, (argv, captured.err)
+        return
+    data = json.loads(captured.out)
+    assert _finite_numbers(data), argv
+    assert data["energy"]["scattered"] + data["energy"]["absorbed"] == pytest.approx(1.0, abs=0.011), argv
+    assert (out / "lobe.png").stat().st_size > 1000 and not list(out.glob(".*.tmp"))

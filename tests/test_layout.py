@@ -9,7 +9,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "paintjax"
 #: The stages in the order light travels; the pipeline and the CLI sit on top.
 LAYERS = ("optics", "wave", "brdf", "microstructure", "instrument", "tracer", "inverse", "_pipeline", "cli")
 #: Shared infrastructure any stage may use; it imports no stage.
-INFRASTRUCTURE = ("_cache", "_io", "_progress", "_samples")
+INFRASTRUCTURE = ("_cache", "_io", "_progress", "_samples", "_validate")
 
 
 def _layer(parts: list[str]) -> str | None:

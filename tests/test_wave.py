@@ -232,6 +232,12 @@ def test_profile_averaged_lobes_contract():
         (dict(points_per_wavelength=2.0), "points_per_wavelength"),
         (dict(metal_index=1.5 + 0j), "metal_index"),
         (dict(sigma_um=-1.0), "sigma_um"),
+        (dict(wavelength_um=15.0), r"wavelength_um must lie in \[0.2, 12.0\] µm \(Lorentz–Drude validity\)"),
+        (dict(n_medium=0.5), r"n_medium must lie in \[1.0, 5.0\]"),
+        (dict(seed=-1), "seed must be an integer ≥ 0"),
+        (dict(num_profiles=2.5), "num_profiles must be an integer in"),
+        (dict(length_um=0.5), "length_um must be at least 1.06 µm at this wavelength_um and n_medium"),
+        (dict(tau_um=0.1, points_per_wavelength=4.0), "tau_um must be at least two grid steps.*raise points_per_wavelength"),
     ],
 )
 def test_bad_input_raises(kwargs, match):

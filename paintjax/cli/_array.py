@@ -5,9 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 
 from .._pipeline import array_overrides
+from .._validate import Range
+from ..microstructure._array import MAX_TILE_UM
 from ..microstructure._plots import plot_cross_section, plot_tilt_histogram
-from ._common import add_array_arguments, add_json_argument, add_output_argument, print_json
+from ._common import ARRAY_RANGES, SEED, add_array_arguments, add_json_argument, add_output_argument, print_json
 
+#: The validation layer's ranges (flag → `Range`), checked before any work.
+RANGES = {"--seed": SEED, "--tile": Range(0.0, MAX_TILE_UM, "µm", lo_open=True), **ARRAY_RANGES,
+          "--max-attempts": Range(0, None, integer=True)}
 JSON_KEYS = ("count", "pvc", "overlaps_exact", "overlaps_midplane", "tilt_ks", "seconds")
 
 

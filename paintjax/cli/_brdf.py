@@ -7,7 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_json_argument, add_output_argument, print_json
+from .._validate import Range
+from ..wave._checks import LOBE_RANGES
+from ._common import SEED, add_json_argument, add_output_argument, print_json
 
 CUT_INCIDENCE_DEG = (0.0, 20.0, 40.0, 60.0)
 THETA_O_DEG = np.arange(-89.0, 90.0, 1.0)
@@ -15,6 +17,11 @@ THETA_O_DEG = np.arange(-89.0, 90.0, 1.0)
 
 #: API argument → flag, for error messages.
 API_FLAGS = {"sigma_um": "--sigma", "tau_um": "--tau", "wavelength_um": "--wavelength", "n_medium": "--n", "length_um": "--length", "num_profiles": "--profiles", "cache_dir": "--cache-dir"}
+
+
+#: The validation layer's ranges (flag → `Range`), checked before any work: the wave solver's, τ up to the tables' 1 mm.
+RANGES = {"--sigma": LOBE_RANGES["sigma_um"], "--tau": Range(0.0, 1e3, "µm", lo_open=True), "--wavelength": LOBE_RANGES["wavelength_um"],
+          "--n": LOBE_RANGES["n_medium"], "--profiles": LOBE_RANGES["num_profiles"], "--length": LOBE_RANGES["length_um"], "--seed": SEED}
 
 
 def register(sub) -> None:
@@ -48,8 +55,6 @@ def compute(sigma=0.051, tau=0.64, wavelength=0.5, n=1.5, profiles=None, length=
     from ..brdf._table import TabulatedBRDF, platelet_table_arrays
 
     profiles = DEFAULT_NUM_PROFILES if profiles is None else profiles
-    if not (isinstance(profiles, int) and profiles >= 1):
-        raise ValueError(f"profiles must be an integer ≥ 1, got {profiles!r}")
     t0 = time.perf_counter()
     arrays, info = platelet_table_arrays(
         sigma, tau, source=source, wavelength_um=wavelength, n_medium=n, num_profiles=profiles, length_um=length,

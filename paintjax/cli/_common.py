@@ -8,6 +8,25 @@ import sys
 
 from .._io import to_jsonable
 from .._pipeline import D50_RANGE_UM
+from .._validate import Range, check_args
+from ..microstructure._array import MAX_PVC
+from ..wave._checks import MAX_SIGMA_UM
+
+#: Ranges shared by several sub-commands (each sub-command's `RANGES` maps its flags to `Range`s).
+SEED = Range(0, None, integer=True)
+#: `add_paint_arguments`' flags (σ as the wave tables accept it).
+PAINT_RANGES = {"--shape": Range(0.0, None, lo_open=True, why="tilt gamma shape"), "--scale": Range(0.0, None, "degrees", lo_open=True),
+                "--sigma": Range(0.0, MAX_SIGMA_UM, "µm", lo_open=True), "--tau": Range(0.0, 1e3, "µm", lo_open=True)}
+#: `add_array_arguments`' flags.
+ARRAY_RANGES = {"--pvc": Range(0.0, MAX_PVC, lo_open=True), "--d50": Range(*D50_RANGE_UM, "µm"),
+                "--platelet-thickness": Range(0.0, None, "µm", lo_open=True)}
+
+
+def check_flags(args, ranges) -> None:
+    """Every option of `ranges` (flag → `Range`) that was given against its range, before any work: a
+    ValueError "--flag must lie in [a, b] unit, got X" (`paintjax._validate.check_args`). A flag the command does not
+    have is an AttributeError, not a check silently skipped."""
+    check_args({flag: getattr(args, flag[2:].replace("-", "_")) for flag in ranges}, ranges)
 
 
 def print_json(obj) -> None:
@@ -82,8 +101,6 @@ def add_paint_arguments(parser) -> None:
 
 def add_array_arguments(parser) -> None:
     """`--pvc`, `--d50` and `--platelet-thickness`: the platelet overrides of `array_overrides`."""
-    from ..microstructure._array import MAX_PVC
-
     parser.add_argument("--pvc", type=float, help=f"pigment volume concentration in (0, {MAX_PVC}]; default: the sample's (0.20)")
     parser.add_argument("--d50", type=float,
                         help=f"median platelet width [µm] in [{D50_RANGE_UM[0]:g}, {D50_RANGE_UM[1]:g}]: the sample's log-normal width law scaled to this median (D10, D90 and "

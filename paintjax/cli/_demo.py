@@ -16,6 +16,8 @@ import numpy as np
 from . import _table1 as table1
 from ._common import print_json
 
+#: The validation layer's ranges: table1's options.
+RANGES = table1.RANGES
 #: What the demo prints of each posterior: parameter → (label, scale, unit).
 _SHOWN = {"shape": ("tilt shape", 1.0, ""), "scale": ("tilt scale", 1.0, "°"), "sigma": ("σ", 1000.0, " nm"),
           "tau": ("τ", 1.0, " µm"), "discrepancy": ("δ", 1.0, " L*")}

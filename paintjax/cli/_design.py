@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-import math
 import sys
 
 from .._cache import enable_compilation_cache
+from .._validate import Range
 from ._common import add_json_argument, parse_floats, print_json
-from ._fit import add_model_arguments, parse_fixed, parse_free
+from ._fit import MODEL_RANGES, add_model_arguments, parse_fixed, parse_free
 
 DEFAULT_FREE = ("shape", "scale", "sigma", "tau")
+#: The validation layer's ranges (flag → `Range`), checked before the forward model is built.
+RANGES = {**MODEL_RANGES, "--tolerance": Range(0.0, None, "L*", lo_open=True)}
 
 
 def register(sub) -> None:
@@ -35,10 +37,6 @@ def compute(args):
     weights = None if args.weights is None else parse_floats(args.weights, "--weights", 5)
     fixed = parse_fixed(args.fix)
     free = parse_free(args.free, [n for n in DEFAULT_FREE if n not in fixed])
-    if args.starts < 1:
-        raise ValueError(f"--starts must be >= 1, got {args.starts}")
-    if not (math.isfinite(args.tolerance) and args.tolerance > 0):  # before the forward model is built
-        raise ValueError(f"--tolerance must be a finite number > 0 [L*], got {args.tolerance!r}")
     forward = make_forward(args.forward, free, fixed, progress=not args.json)
     if args.free is None:  # defaults adapt to the model; explicit --free is taken as given
         free = tuple(n for n in free if n in forward.parameter_names)

@@ -6,7 +6,8 @@ from __future__ import annotations
 import time
 
 from .._cache import enable_compilation_cache
-from ._common import add_json_argument, parse_floats, print_json
+from .._validate import Range
+from ._common import SEED, add_json_argument, parse_floats, print_json
 
 #: Default forward model: the ray tracer through its wide-box emulator (shipped with the package).
 DEFAULT_FORWARD = "tracer-emulator-wide"
@@ -34,6 +35,14 @@ def parse_free(text, default) -> tuple[str, ...]:
     if not names:
         raise ValueError("--free must name at least one parameter")
     return names
+
+
+#: The validation layer's ranges of `add_model_arguments`' options (flag → `Range`).
+MODEL_RANGES = {"--starts": Range(1, None, integer=True), "--seed": SEED}
+#: The validation layer's ranges (flag → `Range`), checked before any model is built (the walkers' count, even and
+#: at least twice the sampled parameters, in `check_run_sizes` and `check_walkers`).
+RANGES = {**MODEL_RANGES, "--workers": Range(1, None, integer=True), "--max-steps": Range(1, None, integer=True),
+          "--min-ess": Range(0.0, None, lo_open=True), "--tilt-platelets": Range(0, 1_000_000, integer=True)}
 
 
 def add_model_arguments(p, *, starts: int = 8) -> None:
@@ -114,8 +123,6 @@ def compute(args) -> dict:
         raise ValueError("--inputs applies to --posterior (the published inputs enter the posterior as data)")
     if args.inputs != "none" and args.measured is not None:
         raise ValueError("--inputs needs --sample: published inputs belong to a reference sample, not to --measured values")
-    if not 0 <= args.tilt_platelets <= 1_000_000:
-        raise ValueError(f"--tilt-platelets must lie in [0, 1000000], got {args.tilt_platelets}")
     if args.no_figures:
         raise ValueError("--no-figures applies to --data")
     if args.overwrite and not args.chain:
@@ -199,11 +206,7 @@ def _posterior_setup(args, forward, measured, lsq_free, fixed):
 
 
 def check_run_sizes(args) -> None:
-    """--starts, --max-steps and --walkers, for one panel and for --data alike (before any work)."""
-    if args.starts < 1:
-        raise ValueError(f"--starts must be >= 1, got {args.starts}")
-    if args.max_steps < 1:
-        raise ValueError(f"--max-steps must be >= 1, got {args.max_steps}")
+    """--walkers, for one panel and for --data alike (before any work; the other sizes are in `RANGES`)."""
     if args.posterior and (args.walkers < 2 or args.walkers % 2):  # the full check (≥ 2 × sampled parameters) follows
         raise ValueError(f"--walkers must be even and >= 2 × the sampled parameters, got {args.walkers}")
 
@@ -225,10 +228,6 @@ def run_batch(args) -> int:
     if args.inputs != "none" or args.chain:
         raise ValueError("--inputs and --chain apply to one panel: with --data, give known inputs as columns (sigma, sigma_sd, …)")
     check_run_sizes(args)
-    if args.posterior and not args.min_ess > 0:
-        raise ValueError(f"--min-ess must be > 0, got {args.min_ess}")
-    if args.workers < 1:
-        raise ValueError(f"--workers must be >= 1, got {args.workers}")
     fixed = parse_fixed(args.fix)
     if fixed:
         raise ValueError("--fix with --data is not available: every panel fits the same free parameters")

@@ -3,9 +3,14 @@
 from __future__ import annotations
 
 from .._cache import enable_compilation_cache
+from .._validate import Range
 from ..appearance._carpaint import MAX_LOBES
 from ..appearance._gonio import DEFAULT_AZIMUTH, DEFAULT_INCIDENCES, DEFAULT_POLAR, DEFAULT_RAYS
+from ..tracer._trace import MAX_RAYS
 from ._common import (
+    ARRAY_RANGES,
+    PAINT_RANGES,
+    SEED,
     add_array_arguments,
     add_color_table_argument,
     add_json_argument,
@@ -15,6 +20,10 @@ from ._common import (
     parse_distinct,
     print_json,
 )
+
+#: The validation layer's ranges (flag → `Range`), checked before any work.
+RANGES = {**PAINT_RANGES, **ARRAY_RANGES, "--lobes": Range(1, MAX_LOBES, integer=True), "--rays": Range(32, MAX_RAYS, integer=True),
+          "--seed": SEED}
 
 
 def register(sub) -> None:
@@ -56,8 +65,6 @@ def run(args) -> int:
             table_options[key] = parse_distinct(getattr(args, flag), f"--{flag}")
     color_table = parse_color_table(args.color_table)
     paint = {k: getattr(args, k) for k in ("shape", "scale", "sigma", "tau", "pvc", "d50", "platelet_thickness") if getattr(args, k) is not None}
-    if not (1 <= args.lobes <= MAX_LOBES):
-        raise ValueError(f"--lobes must be an integer in [1, {MAX_LOBES}], got {args.lobes}")
     table = gonio_table(s.name, progress=True, **table_options, **paint)
     fit = fit_car_paint(table, lobes=args.lobes, coat_index=s.binder_index, color_table=color_table)
     csv = table.save_csv(f"{args.out}/{s.name}_gonio.csv")

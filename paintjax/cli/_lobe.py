@@ -40,7 +40,17 @@ def register(sub) -> None:
 #: API argument → flag, for error messages.
 API_FLAGS = {"sigma_um": "--sigma", "tau_um": "--tau", "wavelength_um": "--wavelength", "n_medium": "--n", "length_um": "--length",
              "num_profiles": "--profiles", "points_per_wavelength": "--ppw", "incidence_deg": "--incidence",
-             "profile must": "--profile must", "units must": "--units must"}
+             "seed": "--seed", "profile must": "--profile must", "units must": "--units must"}
+
+
+def flag_ranges(args) -> dict:
+    """The validation layer's ranges (flag → `Range`), checked before any work: the wave solver's (`LOBE_RANGES`; the
+    wavelength the aluminium model's for --bc impedance) and the θ_s grid step."""
+    from .._validate import Range
+    from ..wave._checks import LOBE_RANGES, OTHER_WAVELENGTHS
+
+    wave = LOBE_RANGES if args.bc == "impedance" else LOBE_RANGES | {"wavelength_um": OTHER_WAVELENGTHS}
+    return {flag: wave[api] for api, flag in API_FLAGS.items() if api in wave} | {"--step": Range(0.01, 10.0, "degrees")}
 
 
 def compute(args) -> dict:
@@ -50,8 +60,6 @@ def compute(args) -> dict:
     from ..wave._profiles import load_line_scan, process_line_scan, profile_statistics, profiles_from_heights
     from ..wave._solver import check_energy, default_spacing, solve_profiles
 
-    if not (0.01 <= args.step <= 10.0):
-        raise ValueError(f"--step must lie in [0.01, 10] degrees, got {args.step!r}")
     theta_s = np.clip(np.arange(-90.0, 90.0 + 1e-9, args.step), -90.0, 90.0)
     if args.profile:
         scan = load_line_scan(args.profile, units=args.units)

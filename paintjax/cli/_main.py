@@ -47,6 +47,17 @@ def _check_output_folder(out) -> None:
         raise ValueError(f"--out must be a folder that can be written, but {str(probe)!r} is not writable, got {out!r}")
 
 
+def _check_arguments(args) -> None:
+    """The validation layer, before any array, table, fit or compilation: every option in the command's
+    `RANGES` (flag → `paintjax._validate.Range`; `flag_ranges(args)` where they depend on other options) against its
+    range, then `--out`."""
+    from ._common import check_flags
+
+    module = importlib.import_module(f"paintjax.cli._{args.command}")
+    check_flags(args, module.flag_ranges(args) if hasattr(module, "flag_ranges") else getattr(module, "RANGES", {}))
+    _check_output_folder(getattr(args, "out", None))
+
+
 def _as_flags(message: str, command: str) -> str:
     """The error message with the API argument names of the command's `API_FLAGS` written as its flags."""
     import re
@@ -67,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as done:  # --help (0) or a usage error (2, already printed on one line)
         return int(done.code or 0)
     try:
-        _check_output_folder(getattr(args, "out", None))
+        _check_arguments(args)
         result = args.func(args)
     except ValueError as err:
         print(f"paintjax {args.command}: error: {_as_flags(str(err), args.command)}", file=sys.stderr)

@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 from .._pipeline import flop_index_or_none
-from ._common import add_json_argument, format_optional, print_json
+from .._validate import Range
+from ._common import PAINT_RANGES, add_json_argument, format_optional, print_json
+
+#: The validation layer's ranges (flag → `Range`), checked before any work.
+RANGES = {"--shape": PAINT_RANGES["--shape"], "--scale": PAINT_RANGES["--scale"], "--reflectance": Range(0.0, 1.0),
+          "--n": Range(1.0, 3.0, lo_open=True, why="coat refractive index")}
 
 
 def register(sub) -> None:

@@ -3,7 +3,7 @@ posterior with its predictive check, for one panel (`--sample`, `--measured`) or
 
 from __future__ import annotations
 
-from ._fit import API_FLAGS, add_fit_arguments, run  # noqa: F401  (API_FLAGS: the CLI's error-message mapping)
+from ._fit import API_FLAGS, RANGES, add_fit_arguments, run  # noqa: F401  (API_FLAGS, RANGES: the validation layer's names and ranges)
 
 
 def register(sub) -> None:

@@ -6,7 +6,12 @@ import os
 
 from .._cache import enable_compilation_cache
 from .._samples import sample_names
+from .._validate import Range
 from ._common import add_color_table_argument, parse_color_table
+
+#: The validation layer's ranges (flag → `Range`), checked before Mitsuba is loaded.
+RANGES = {"--resolution": Range(16, 4096, "pixels", integer=True), "--spp": Range(1, 65536, integer=True),
+          "--seed": Range(0, 2**32 - 1, integer=True)}
 
 
 def register(sub) -> None:

@@ -15,9 +15,15 @@ import numpy as np
 
 from .._cache import enable_compilation_cache
 from .._pipeline import DEFAULT_TARGET_SE, MIRROR_APERTURE_DEG, check_adaptive, flop_index_or_none, simulate
-from ._common import add_json_argument, add_output_argument, format_optional, print_json
+from .._validate import Range
+from ..optics._interface import MAX_WAVINESS_DEG
+from ..tracer._trace import MAX_RAYS
+from ._common import SEED, add_json_argument, add_output_argument, format_optional, print_json
 
 SAMPLES = ("silver1", "silver2")
+#: The validation layer's ranges (flag → `Range`), checked before any work (also `paintjax demo`'s).
+RANGES = {"--target-se": Range(0.0, 10.0, "L*", lo_open=True), "--max-rays": Range(32, MAX_RAYS, integer=True),
+          "--mirror-rays": Range(32, MAX_RAYS, integer=True), "--seed": SEED, "--waviness": Range(0.0, MAX_WAVINESS_DEG, "degrees")}
 #: Ray ceiling per sample of the hybrid column (all passes). The narrow coherent lobe of the platelets
 #: makes 75°/110° spiky: SE ≤ 0.5 took 1.48 M rays for Silver #1 with the forward tracer alone and
 #: 131 k with bidirectional MIS (seed 0); the ceiling guards against the heavy tail.

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Complex
 
+from .._validate import Range
 from ._fresnel import fresnel_conductor
 
 _HC_EV_UM = 1.23984198  # photon energy [eV] × wavelength [µm]
@@ -29,6 +30,8 @@ _OSC_OMEGA = (0.162, 1.544, 1.808, 3.473)
 RAKIC1995_550NM = 1.015 + 6.627j
 
 VISIBLE_RANGE_UM = (0.38, 0.78)
+#: Where the Lorentz–Drude model holds (its 0.1–6 eV window, in µm).
+WAVELENGTH_RANGE = Range(0.2, 12.0, "µm", why="Lorentz–Drude validity")
 
 
 def _check_wavelength(wavelength_um) -> None:
@@ -36,11 +39,8 @@ def _check_wavelength(wavelength_um) -> None:
         w = np.asarray(wavelength_um, dtype=float)
     except (TypeError, ValueError):
         return
-    lo, hi = 0.2, 12.0  # the model's 0.1–6 eV validity window, in µm
-    if np.any(~np.isfinite(w)) or np.any(w < lo) or np.any(w > hi):
-        raise ValueError(
-            f"wavelength_um must lie in [{lo}, {hi}] µm (Lorentz–Drude validity), got {wavelength_um!r}"
-        )
+    if not all(WAVELENGTH_RANGE.contains(float(v)) for v in np.ravel(w)):
+        raise ValueError(f"wavelength_um must {WAVELENGTH_RANGE.describe()}, got {wavelength_um!r}")
 
 
 def aluminium_permittivity(wavelength_um: ArrayLike) -> Complex[Array, "..."]:

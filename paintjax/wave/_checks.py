@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from .._validate import Range
+from ..optics._aluminium import WAVELENGTH_RANGE
 
 #: Most scattering angles of one solve.
 MAX_ANGLES = 20000
@@ -57,3 +62,35 @@ def _check_scalar(name: str, value, lo: float, hi: float) -> float:
     if not (np.isfinite(v) and lo < v <= hi):
         raise ValueError(f"{name} must lie in ({lo}, {hi}], got {value!r}")
     return v
+
+
+#: The ranges of `profile_averaged_lobes`' arguments (and of `paintjax lobe`'s and `paintjax brdf`'s flags): the binder
+#: a dielectric (1 for air), the wavelength the aluminium model's (`paintjax.optics._aluminium.WAVELENGTH_RANGE`).
+LOBE_RANGES = {
+    "sigma_um": Range(0.0, MAX_SIGMA_UM, "µm", lo_open=True),
+    "tau_um": Range(0.0, MAX_TAU_UM, "µm", lo_open=True),
+    "wavelength_um": WAVELENGTH_RANGE,
+    "n_medium": Range(1.0, 5.0, why="binder refractive index"),
+    "length_um": Range(0.0, 1e6, "µm", lo_open=True),
+    "num_profiles": Range(1, MAX_PROFILES, integer=True),
+    "seed": Range(0, None, integer=True),
+    "points_per_wavelength": Range(4.0, 200.0),
+}
+#: The wavelength range for perfect conductors or a given metal index.
+OTHER_WAVELENGTHS = Range(0.0, 20.0, "µm", lo_open=True)
+
+
+def check_lobe_sizes(length_um: float, dx: float, tau_um: float, k: float, points_per_wavelength=None) -> None:
+    """The profile's sizes, before any mesh is built: at most `MAX_PROFILE_POINTS` points, a grid step that
+    resolves the roughness (≤ τ/2), and a profile long enough for the Thorsos beam (taper L/4 ≥ 1/(k√0.04)),
+    each a ValueError naming the argument to change."""
+    from ._beam import MAX_BEAM_CORRECTION
+
+    _check_profile_points(length_um / dx)
+    if dx > tau_um / 2.0:
+        raise ValueError(f"tau_um must be at least two grid steps, {2 * dx:.3g} µm at this wavelength_um, n_medium and "
+                         f"points_per_wavelength ({points_per_wavelength or 'default'}): raise points_per_wavelength, got {tau_um!r}")
+    shortest = 4.0 / (k * math.sqrt(2.0 * MAX_BEAM_CORRECTION))
+    if length_um < shortest:
+        raise ValueError(f"length_um must be at least {shortest:.3g} µm at this wavelength_um and n_medium (the tapered beam's "
+                         f"width L/4 must exceed {shortest / 4:.3g} µm), got {length_um!r}")

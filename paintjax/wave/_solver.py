@@ -55,16 +55,17 @@ from jax.scipy.linalg import lu_factor, lu_solve
 from jaxtyping import Array, Complex, Float
 
 from .._progress import Heartbeat
-from ..optics._aluminium import _check_wavelength, aluminium_index
+from .._validate import check_args
+from ..optics._aluminium import aluminium_index
 from ._beam import incident_field, incident_power, max_incidence_deg
 from ._checks import (
-    MAX_PROFILES,
-    MAX_SIGMA_UM,
-    MAX_TAU_UM,
+    LOBE_RANGES,
+    OTHER_WAVELENGTHS,
     _check_angles,
     _check_profile_points,
     _check_scalar,
     check_energy,  # noqa: F401 (imported from here by brdf._table and the CLI)
+    check_lobe_sizes,
 )
 from ._coherent import (
     COHERENT_WINDOW,
@@ -525,20 +526,14 @@ def profile_averaged_lobes(
     """
     if correlation not in CORRELATIONS:
         raise ValueError(f"correlation must be one of {CORRELATIONS}, got {correlation!r}")
-    wavelength_um = _check_scalar("wavelength_um", wavelength_um, 0.0, 20.0)
-    n_medium = _check_scalar("n_medium", n_medium, 0.0, 5.0)
-    try:
-        seed = int(seed)
-    except (TypeError, ValueError):
-        raise ValueError(f"seed must be an integer, got {seed!r}") from None
-    if isinstance(num_profiles, bool) or not isinstance(num_profiles, (int, np.integer)) or not 1 <= num_profiles <= MAX_PROFILES:
-        raise ValueError(f"num_profiles must be an integer in [1, {MAX_PROFILES}], got {num_profiles!r}")
-    sigma_um = _check_scalar("sigma_um", sigma_um, 0.0, MAX_SIGMA_UM)
-    tau_um = _check_scalar("tau_um", tau_um, 0.0, MAX_TAU_UM)
-    if boundary == "impedance" and metal_index is None:
-        _check_wavelength(wavelength_um)  # the aluminium model's range, before any mesh is built
-    dx = default_spacing(wavelength_um, n_medium, points_per_wavelength, sigma_um=float(sigma_um), tau_um=float(tau_um), correlation=correlation)
-    _check_profile_points(_check_scalar("length_um", length_um, 0.0, 1e6) / dx)
+    ranges = LOBE_RANGES if boundary == "impedance" and metal_index is None else LOBE_RANGES | {"wavelength_um": OTHER_WAVELENGTHS}
+    v = check_args({"sigma_um": sigma_um, "tau_um": tau_um, "wavelength_um": wavelength_um, "n_medium": n_medium, "length_um": length_um,
+                    "num_profiles": num_profiles, "seed": seed, "points_per_wavelength": points_per_wavelength}, ranges,
+                   optional=("points_per_wavelength",))  # every range before any mesh is built
+    sigma_um, tau_um, wavelength_um, n_medium, length_um, num_profiles, seed = (
+        v[k] for k in ("sigma_um", "tau_um", "wavelength_um", "n_medium", "length_um", "num_profiles", "seed"))
+    dx = default_spacing(wavelength_um, n_medium, points_per_wavelength, sigma_um=sigma_um, tau_um=tau_um, correlation=correlation)
+    check_lobe_sizes(length_um, dx, tau_um, 2.0 * math.pi * n_medium / wavelength_um, points_per_wavelength)
     profiles = synthesize_profiles(
         jax.random.PRNGKey(seed), sigma_um, tau_um, length_um=length_um, spacing_um=dx,
         num_profiles=num_profiles, correlation=correlation,
