@@ -42,7 +42,7 @@ MODEL_RANGES = {"--starts": Range(1, None, integer=True), "--seed": SEED}
 #: The validation layer's ranges (flag → `Range`), checked before any model is built (the walkers' count, even and
 #: at least twice the sampled parameters, in `check_run_sizes` and `check_walkers`).
 RANGES = {**MODEL_RANGES, "--workers": Range(1, None, integer=True), "--max-steps": Range(1, None, integer=True),
-          "--min-ess": Range(0.0, None, lo_open=True), "--tilt-platelets": Range(0, 1_000_000, integer=True)}
+          "--min-ess": Range(0.0, None), "--tilt-platelets": Range(0, 1_000_000, integer=True)}
 
 
 def add_model_arguments(p, *, starts: int = 8) -> None:
@@ -90,7 +90,7 @@ def add_fit_arguments(p) -> None:
     p.add_argument("--posterior", action="store_true", help="also sample the posterior with emcee")
     p.add_argument("--walkers", type=int, default=32, help="emcee walkers (default 32)")
     p.add_argument("--max-steps", type=int, default=20000, help="largest number of emcee steps (default 20000)")
-    p.add_argument("--min-ess", type=float, default=1000.0, help="required effective sample size (default 1000)")
+    p.add_argument("--min-ess", type=float, default=1000.0, help="required effective sample size (default 1000; 0: stop on the autocorrelation-time rule alone)")
     p.add_argument("--inputs", choices=("none", "rq", "local_pv", "scan_pv"), default="none",
                    help="with --posterior and --sample: add the sample's published inputs as data, the roughness through the "
                    "virtual profilometer with σ read as the given definition (rq: RMS height) and the tilt law as a gamma fit to "

@@ -387,8 +387,8 @@ def fit_panels(
         from ._posterior import check_walkers
 
         check_walkers(int(posterior["walkers"]), len(free) + 1)
-        if int(posterior["max_steps"]) < 1 or not float(posterior["min_ess"]) > 0:
-            raise ValueError(f"posterior max_steps must be >= 1 and min_ess > 0, got {posterior}")
+        if int(posterior["max_steps"]) < 1 or not float(posterior["min_ess"]) >= 0:
+            raise ValueError(f"posterior max_steps must be >= 1 and min_ess >= 0, got {posterior}")
     panels, bad = read_panels(data)
     stray = sorted({n for p in panels for n in p["known"]} - set(free))
     if stray:
