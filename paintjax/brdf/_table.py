@@ -97,7 +97,8 @@ from jaxtyping import Array, Float
 from scipy.special import erf
 
 from .._cache import cached_arrays
-from ..wave._solver import SOLVER_VERSION, check_energy, default_spacing
+from ..wave._checks import check_energy
+from ..wave._solver import SOLVER_VERSION, default_spacing
 from ._analytic import (
     DEFAULT_PLATELET_WIDTH_UM,
     AbstractLobeBRDF,

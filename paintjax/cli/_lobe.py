@@ -57,8 +57,9 @@ def compute(args) -> dict:
     """Solve and return the lobes and the energy ledger as plain arrays (the CLI's data)."""
     from .. import profile_averaged_lobes
     from .._progress import print_progress
+    from ..wave._checks import check_energy
     from ..wave._profiles import load_line_scan, process_line_scan, profile_statistics, profiles_from_heights
-    from ..wave._solver import check_energy, default_spacing, solve_profiles
+    from ..wave._solver import default_spacing, solve_profiles
 
     theta_s = np.clip(np.arange(-90.0, 90.0 + 1e-9, args.step), -90.0, 90.0)
     if args.profile:

@@ -64,7 +64,6 @@ from ._checks import (
     _check_angles,
     _check_profile_points,
     _check_scalar,
-    check_energy,  # noqa: F401 (imported from here by brdf._table and the CLI)
     check_lobe_sizes,
 )
 from ._coherent import (
