@@ -73,6 +73,10 @@ def register(sub) -> None:
 RANGES = {**PAINT_RANGES, "--thickness": Range(0.0, None, "µm", lo_open=True), **ARRAY_RANGES, "--reflectance": Range(0.0, 1.0),
           "--primer-albedo": Range(0.0, 1.0), "--waviness": Range(0.0, MAX_WAVINESS_DEG, "degrees"),
           "--illumination": Range(0.0, MAX_POLAR_DEG, "degrees", lo_open=True), "--rays": Range(32, MAX_RAYS, integer=True), "--seed": SEED}
+#: `simulate`'s API argument names as the messages of its deeper checks use them → its flags.
+API_FLAGS = {"aspecular_deg": "--aspecular", "illumination_deg": "--illumination", "platelet_thickness": "--platelet-thickness",
+             "thickness:": "--thickness:", "brdf_method": "--brdf-method", "correlation applies": "--correlation applies",
+             "measured must": "--measured must", "sigma_um": "--sigma", "tau_um": "--tau"}
 _JSON_KEYS = ("aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds", "resolved", "flop_index")
 _SPECTRAL_KEYS = ("wavelengths_nm", "spectral_reflectance_factor", "Lab", "Lab_se")
 
