@@ -18,6 +18,11 @@ from importlib import resources
 import numpy as np
 
 from ._progress import print_progress
+from ._validate import Range, check_args
+from .instrument._geometry import MAX_POLAR_DEG
+from .microstructure._array import MAX_PVC
+from .optics._interface import MAX_WAVINESS_DEG
+from .wave._checks import MAX_SIGMA_UM, MAX_TAU_UM
 from .wave._profiles import CORRELATIONS
 
 
@@ -32,6 +37,17 @@ def flop_index_or_none(L15, L45, L110) -> float | None:
 #: Allowed median platelet width for `--d50` [µm]: the reference samples' platelets are 10–30 µm
 #: across; beyond 50 µm the widest platelets (≈ 4.7 × D50) no longer fit a 20 µm film at their tilts.
 D50_RANGE_UM = (1.0, 50.0)
+
+#: The valid ranges of a simulated paint's tilt law and roughness (σ and τ as the wave tables accept them) and of
+#: its array overrides (`array_overrides`), keyed by argument; the CLI checks the same ranges under its flags.
+PAINT_RANGES = {"shape": Range(0.0, None, lo_open=True, why="tilt gamma shape"), "scale": Range(0.0, None, "degrees", lo_open=True),
+                "sigma": Range(0.0, MAX_SIGMA_UM, "µm", lo_open=True), "tau": Range(0.0, MAX_TAU_UM, "µm", lo_open=True)}
+ARRAY_RANGES = {"pvc": Range(0.0, MAX_PVC, lo_open=True), "d50": Range(*D50_RANGE_UM, "µm"),
+                "platelet_thickness": Range(0.0, None, "µm", lo_open=True)}
+#: `simulate`'s scalar arguments, checked before any table, array or trace (the ray count by `check_ray_count`).
+SIMULATE_RANGES = {**PAINT_RANGES, "thickness": Range(0.0, None, "µm", lo_open=True), **ARRAY_RANGES,
+                   "reflectance": Range(0.0, 1.0), "primer_albedo": Range(0.0, 1.0), "waviness": Range(0.0, MAX_WAVINESS_DEG, "degrees"),
+                   "illumination_deg": Range(0.0, MAX_POLAR_DEG, "degrees", lo_open=True), "seed": Range(0, None, integer=True)}
 
 
 def array_overrides(s, *, pvc=None, thickness=None, d50=None, platelet_thickness=None) -> dict:
@@ -264,6 +280,9 @@ def simulate(
     from .tracer._trace import _check_range, _seed_state, check_ray_count, trace
 
     t0 = time.perf_counter()
+    given = dict(shape=shape, scale=scale, sigma=sigma, tau=tau, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness,
+                 reflectance=reflectance, primer_albedo=primer_albedo, waviness=waviness, illumination_deg=illumination_deg, seed=seed)
+    check_args(given, SIMULATE_RANGES, optional=("shape", "scale", "sigma", "tau", "pvc", "thickness", "d50", "platelet_thickness", "reflectance"))
     s = load_sample(sample)
     # every cheap check before any table or array is built
     if rays is not None:

@@ -141,3 +141,49 @@ def test_edge_valid_lobe_gives_finite_json_and_its_plot(wavelength, n, sigma, pr
     assert _finite_numbers(data), argv
     assert data["energy"]["scattered"] + data["energy"]["absorbed"] == pytest.approx(1.0, abs=0.011), argv
     assert (out / "lobe.png").stat().st_size > 1000 and not list(out.glob(".*.tmp"))
+
+
+def _largest_platelet(pvc, d50, platelet_thickness) -> tuple[float, float, float]:
+    """Silver #1 with these overrides: (the smallest tile side `paintjax array` accepts, √2 × the largest width + t;
+    the largest platelet's volume; the basecoat thickness)."""
+    from paintjax import load_sample
+    from paintjax._pipeline import array_overrides
+
+    s = load_sample("silver1")
+    kw = array_overrides(s, pvc=pvc, d50=d50, platelet_thickness=platelet_thickness)
+    w, t = float(kw["sizes"].max_width), kw.get("thickness", s.platelet_thickness)
+    return math.sqrt(2.0) * w + t, w * w * t, s.basecoat_thickness
+
+
+@settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture], derandomize=True)
+@example(pvc=0.4, d50=1.0, platelet_thickness=0.001, tile_factor=1.0)  # the densest, smallest, thinnest corner: too many platelets
+@example(pvc=0.001, d50=50.0, platelet_thickness=19.0, tile_factor=1.5)  # the sparsest, widest, thickest corner: under one platelet
+@example(pvc=0.4, d50=16.0, platelet_thickness=19.0, tile_factor=1.0)  # dense thick platelets: placed
+@given(pvc=st.sampled_from([0.001, 0.4]), d50=st.sampled_from([1.0, 16.0, 50.0]), platelet_thickness=st.sampled_from([0.001, 1.0, 19.0]),
+       tile_factor=st.sampled_from([1.0, 1.5]))
+def test_edge_valid_array_gives_finite_json_and_its_pictures(pvc, d50, platelet_thickness, tile_factor, tmp_path_factory, capsys):
+    """`array` at the ends of its ranges, in the smallest tile the widths allow (and 1.5 × that), with 50 re-placements per
+    platelet (bounded time): exit 0 with standard JSON, every number finite, no overlap left, the PVC reached and both
+    pictures written whole; or one line that names the flag to change (exit 2: more platelets than the generator
+    takes, a PVC below half a platelet in that tile, or overlaps that could not be removed)."""
+    import json
+
+    smallest, largest_volume, basecoat = _largest_platelet(pvc, d50, platelet_thickness)
+    tile = tile_factor * smallest * (1 + 1e-9)
+    out = tmp_path_factory.mktemp("array")
+    argv = ["array", "--pvc", repr(pvc), "--d50", repr(d50), "--platelet-thickness", repr(platelet_thickness), "--tile", repr(tile),
+            "--max-attempts", "50", "--json", "--out", str(out)]
+    code = main(argv)
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err and code in (0, 2), (argv, captured.err)
+    if code == 2:  # progress lines, indented, may come first
+        lines = [ln for ln in captured.err.strip().splitlines() if not ln.startswith("  ")]
+        assert len(lines) == 1 and any(f in lines[0] for f in ("--pvc", "--tile", "--max-attempts", "--platelet-thickness")), (argv, lines)
+        assert not list(out.glob("*.png")) and not list(out.glob(".*.tmp"))
+        return
+    data = json.loads(captured.out)
+    assert _finite_numbers(data) and data["count"] >= 1 and data["overlaps_exact"] == 0, (argv, data)
+    # the widths are drawn until their volume is closest to the target: within half the largest platelet of it
+    assert abs(data["pvc"] - pvc) <= 0.5 * largest_volume / (tile * tile * basecoat) + 1e-12, (argv, data)
+    pictures = sorted(out.glob("*.png"))
+    assert len(pictures) == 2 and all(p.stat().st_size > 1000 for p in pictures) and not list(out.glob(".*.tmp")), pictures

@@ -52,8 +52,10 @@ def check_positive(name: str, value, hi: float = np.inf) -> None:
     """ValueError naming `name` unless value is a finite number in (0, hi] (traced values pass)."""
     try:
         v = np.asarray(value, dtype=float)
-    except (TypeError, ValueError, jax.errors.TracerArrayConversionError):
+    except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
         return
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number in (0, {hi:g}], got {value!r}") from None
     if np.any(~np.isfinite(v)) or np.any(v <= 0) or np.any(v > hi):
         raise ValueError(f"{name} must lie in (0, {hi:g}], got {value!r}")
 

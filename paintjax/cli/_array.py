@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 from .._pipeline import array_overrides
+from .._progress import print_progress
 from .._validate import Range
 from ..microstructure._array import MAX_TILE_UM
 from ..microstructure._plots import plot_cross_section, plot_tilt_histogram
@@ -13,6 +15,10 @@ from ._common import ARRAY_RANGES, SEED, add_array_arguments, add_json_argument,
 #: The validation layer's ranges (flag → `Range`), checked before any work.
 RANGES = {"--seed": SEED, "--tile": Range(0.0, MAX_TILE_UM, "µm", lo_open=True), **ARRAY_RANGES,
           "--max-attempts": Range(0, None, integer=True)}
+#: The API argument names of the generator's own checks (the tile's lower end depends on the widths) → flags.
+API_FLAGS = {"tile (": "--tile (", "tile sides": "--tile sides", "tile must": "--tile must", "platelet_thickness": "--platelet-thickness",
+             "lower pvc, a smaller tile, or thicker or wider platelets": "lower --pvc, a smaller --tile, or a larger --platelet-thickness or --d50",
+             "raise pvc or tile": "raise --pvc or --tile"}
 JSON_KEYS = ("count", "pvc", "overlaps_exact", "overlaps_midplane", "tilt_ks", "seconds")
 
 
@@ -39,17 +45,18 @@ def register(sub) -> None:
 
 
 def compute(sample="silver1", seed=0, tile=None, pvc=None, overlap_test="sat", max_attempts=1000, d50=None,
-            platelet_thickness=None) -> tuple:
+            platelet_thickness=None, progress=False) -> tuple:
     """Build the array; returns (array, tilt law, statistics dict incl. the JSON keys, log).
 
-    `pvc`, `d50` and `platelet_thickness` override the sample's (`_common.array_overrides`).
+    `pvc`, `d50` and `platelet_thickness` override the sample's (`_common.array_overrides`); `progress` prints
+    the share of platelets placed, with the time left, every few seconds to stderr.
     """
     from .. import GammaTilt, load_sample
     from ..microstructure._array import platelet_array_for_sample
     from ..microstructure._statistics import array_statistics
 
     s = load_sample(sample)
-    overrides = dict(overlap_test=overlap_test, max_attempts=max_attempts,
+    overrides = dict(overlap_test=overlap_test, max_attempts=max_attempts, heartbeat=print_progress("array", "of the platelets placed") if progress else None,
                      **array_overrides(s, pvc=pvc, d50=d50, platelet_thickness=platelet_thickness))
     if tile is not None:
         overrides["tile"] = tile
@@ -61,8 +68,10 @@ def compute(sample="silver1", seed=0, tile=None, pvc=None, overlap_test="sat", m
 
 
 def run(args) -> int:
-    array, tilt, stats = compute(args.sample, args.seed, args.tile, args.pvc, args.overlap_test, args.max_attempts,
-                                 d50=args.d50, platelet_thickness=args.platelet_thickness)
+    with warnings.catch_warnings():  # leftover overlaps are refused or reported below, not warned about twice
+        warnings.filterwarnings("ignore", message=r".*still overlap after", category=RuntimeWarning)
+        array, tilt, stats = compute(args.sample, args.seed, args.tile, args.pvc, args.overlap_test, args.max_attempts,
+                                     d50=args.d50, platelet_thickness=args.platelet_thickness, progress=True)
     left = stats["overlaps_midplane" if args.overlap_test == "midplane" else "overlaps_exact"]
     if args.overlap_test != "none" and left > 0 and not args.allow_overlaps:
         raise ValueError(f"{left} overlapping platelet pairs remain after --max-attempts {args.max_attempts} re-placements "

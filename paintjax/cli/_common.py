@@ -6,20 +6,24 @@ import json
 import math
 import sys
 
+from .. import _pipeline as pipeline
 from .._io import to_jsonable
 from .._pipeline import D50_RANGE_UM
 from .._validate import Range, check_args
 from ..microstructure._array import MAX_PVC
-from ..wave._checks import MAX_SIGMA_UM, MAX_TAU_UM
+
+
+def as_flags(ranges, renamed=None) -> dict:
+    """A library entry point's ranges (argument → `Range`) under the CLI's flags: `platelet_thickness` →
+    `--platelet-thickness`, or as `renamed` (argument → flag) says."""
+    renamed = renamed or {}
+    return {renamed.get(k, "--" + k.replace("_", "-")): r for k, r in ranges.items()}
+
 
 #: Ranges shared by several sub-commands (each sub-command's `RANGES` maps its flags to `Range`s).
 SEED = Range(0, None, integer=True)
-#: `add_paint_arguments`' flags (σ and τ as the wave tables accept them).
-PAINT_RANGES = {"--shape": Range(0.0, None, lo_open=True, why="tilt gamma shape"), "--scale": Range(0.0, None, "degrees", lo_open=True),
-                "--sigma": Range(0.0, MAX_SIGMA_UM, "µm", lo_open=True), "--tau": Range(0.0, MAX_TAU_UM, "µm", lo_open=True)}
-#: `add_array_arguments`' flags.
-ARRAY_RANGES = {"--pvc": Range(0.0, MAX_PVC, lo_open=True), "--d50": Range(*D50_RANGE_UM, "µm"),
-                "--platelet-thickness": Range(0.0, None, "µm", lo_open=True)}
+#: `add_paint_arguments`' flags (σ and τ as the wave tables accept them) and `add_array_arguments`'.
+PAINT_RANGES, ARRAY_RANGES = as_flags(pipeline.PAINT_RANGES), as_flags(pipeline.ARRAY_RANGES)
 
 
 def check_flags(args, ranges) -> None:

@@ -5,20 +5,16 @@ from __future__ import annotations
 import numpy as np
 
 from .._cache import enable_compilation_cache
-from .._pipeline import BRDF_METHODS, BRDFS, DEFAULT_PRIMER_ALBEDO, DEFAULT_TARGET_SE, simulate
+from .._pipeline import BRDF_METHODS, BRDFS, DEFAULT_PRIMER_ALBEDO, DEFAULT_TARGET_SE, SIMULATE_RANGES, simulate
 from .._validate import Range
-from ..instrument._geometry import MAX_POLAR_DEG
-from ..optics._interface import MAX_WAVINESS_DEG
 from ..tracer._trace import MAX_RAYS
 from ..wave._profiles import CORRELATIONS
 from ._common import (
-    ARRAY_RANGES,
-    PAINT_RANGES,
-    SEED,
     add_array_arguments,
     add_json_argument,
     add_output_argument,
     add_paint_arguments,
+    as_flags,
     parse_distinct,
     parse_floats,
     print_json,
@@ -70,13 +66,12 @@ def register(sub) -> None:
 
 #: The validation layer's ranges (flag → `Range`), checked before any work (the ray count's lower end, one per
 #: batch of the standard error, is the tracer's default `TracerOptions.batches`).
-RANGES = {**PAINT_RANGES, "--thickness": Range(0.0, None, "µm", lo_open=True), **ARRAY_RANGES, "--reflectance": Range(0.0, 1.0),
-          "--primer-albedo": Range(0.0, 1.0), "--waviness": Range(0.0, MAX_WAVINESS_DEG, "degrees"),
-          "--illumination": Range(0.0, MAX_POLAR_DEG, "degrees", lo_open=True), "--rays": Range(32, MAX_RAYS, integer=True), "--seed": SEED}
+RANGES = {**as_flags(SIMULATE_RANGES, {"illumination_deg": "--illumination"}), "--rays": Range(32, MAX_RAYS, integer=True)}
 #: `simulate`'s API argument names as the messages of its deeper checks use them → its flags.
 API_FLAGS = {"aspecular_deg": "--aspecular", "illumination_deg": "--illumination", "platelet_thickness": "--platelet-thickness",
              "thickness:": "--thickness:", "brdf_method": "--brdf-method", "correlation applies": "--correlation applies",
-             "measured must": "--measured must", "sigma_um": "--sigma", "tau_um": "--tau"}
+             "measured must": "--measured must", "sigma_um": "--sigma", "tau_um": "--tau",
+             "lower pvc, a smaller tile, or thicker or wider platelets": "lower --pvc, or a larger --platelet-thickness or --d50"}
 _JSON_KEYS = ("aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds", "resolved", "flop_index")
 _SPECTRAL_KEYS = ("wavelengths_nm", "spectral_reflectance_factor", "Lab", "Lab_se")
 

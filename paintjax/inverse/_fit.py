@@ -37,6 +37,7 @@ import numpy as np
 import optimistix as optx
 
 from .._optx import result_message
+from .._validate import Range, check_args
 from ._forward import ForwardModel, Restricted, _jit_evaluate
 from ._observations import check_instrument_sd, check_measured, prior_arrays
 from ._parameters import ParameterSpec, make_spec, unit_to_value
@@ -186,6 +187,11 @@ def _unidentified(Jx: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
     return (np.linalg.norm(vt[rank:], axis=0) > 1e-6) | (col == 0)
 
 
+#: The ranges of `fit_least_squares`' integer settings, checked before any work.
+FIT_RANGES = {"n_starts": Range(1, None, integer=True), "max_steps": Range(1, None, integer=True),
+              "continuations": Range(0, None, integer=True), "seed": Range(0, None, integer=True)}
+
+
 def fit_least_squares(
     forward: ForwardModel,
     measured,
@@ -234,8 +240,9 @@ def fit_least_squares(
     m = len(forward.aspecular_deg)
     y = check_measured(measured, m)
     check_instrument_sd(instrument_sd, m)
-    if int(n_starts) < 1:
-        raise ValueError(f"n_starts must be >= 1, got {n_starts!r}")
+    settings = {"n_starts": n_starts, "max_steps": max_steps, "continuations": continuations, "seed": seed}
+    settings |= check_args(settings, FIT_RANGES, optional=())
+    n_starts, max_steps, continuations, seed = (settings[k] for k in FIT_RANGES)
     w = np.ones(m) if weights is None else np.asarray(weights, dtype=float).reshape(-1)
     if w.shape != (m,) or np.any(~np.isfinite(w)) or np.any(w < 0) or not np.any(w > 0):
         raise ValueError(f"weights must be {m} finite non-negative numbers, not all zero, got {weights!r}")

@@ -40,6 +40,7 @@ import dataclasses
 import math
 import time
 import warnings
+from collections.abc import Callable
 
 import equinox as eqx
 import jax
@@ -47,6 +48,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from .._progress import Heartbeat
+from .._validate import Range
 from ._grid import _ColumnCells
 from ._overlap import aabb_half_extents, midplane_overlap, obb_overlap, periodic_overlap
 from ._sizes import SizeDistribution, as_size_distribution, positive_finite
@@ -247,6 +250,8 @@ def check_pvc(pvc) -> float:
 
 #: Largest tile side [µm] of a generated array (memory and time of the generator, the grid and the tracer).
 MAX_TILE_UM = 5000.0
+#: Most platelets of a generated array (expected from the PVC, the tile and the width law; the reference samples have ≈ 5,000).
+MAX_PLATELETS = 200_000
 
 
 def generate_platelet_array(
@@ -261,6 +266,7 @@ def generate_platelet_array(
     overlap_test: str = "sat",
     max_attempts: int = 1000,
     return_log: bool = False,
+    heartbeat: Callable[[float, float], None] | None = None,
 ):
     """Build a platelet array from statistics, with overlaps removed (see the module docstring).
 
@@ -277,6 +283,8 @@ def generate_platelet_array(
         overlap_test: "sat" (exact boxes, default), "midplane" (original study) or "none".
         max_attempts: re-placements allowed per platelet, integer ≥ 0 (default 1000).
         return_log: also return a `GenerationLog`.
+        heartbeat: called every `paintjax._progress.HEARTBEAT_SECONDS` during the overlap removal as
+            `heartbeat(fraction of the platelets placed, seconds so far)` (e.g. `paintjax._progress.print_progress`).
 
     Returns:
         PlateletArray, or (PlateletArray, GenerationLog) with `return_log=True`.
@@ -284,7 +292,8 @@ def generate_platelet_array(
     Raises:
         ValueError: naming the parameter, for bad input (PVC outside (0, 0.4] or below half a
             platelet in the tile, non-positive sizes or thickness, basecoat not thicker than a
-            platelet, tile below √2·max_width + t, unknown test, negative attempts, bad seed).
+            platelet, tile below √2·max_width + t, more than `MAX_PLATELETS` platelets expected, unknown
+            test, negative attempts, bad seed).
     Warns:
         RuntimeWarning: when platelets still overlap after `max_attempts` re-placements.
     """
@@ -309,14 +318,17 @@ def generate_platelet_array(
         raise ValueError(f"tile sides must be at most {MAX_TILE_UM:g} µm (≈ 2 × 10⁵ platelets at PVC 0.1 in a 20 µm basecoat), got {tile!r}")
     if min(L) < min_tile:
         raise ValueError(
-            f"tile {L} µm is smaller than the largest platelet allows: each side must be ≥ √2·max_width + "
-            f"thickness = {min_tile:.3g} µm (max_width {w_max:.3g} µm) so no platelet reaches its own image"
+            f"tile {L} µm is smaller than the largest platelet allows: each side must be ≥ √2 × the largest width + "
+            f"the thickness = {min_tile:.3g} µm (largest width {w_max:.3g} µm) so no platelet reaches its own image"
         )
+    expected = pvc_f * L[0] * L[1] * h_b / (sizes.moment(2) * t)
+    if expected > MAX_PLATELETS:
+        raise ValueError(f"pvc {pvc_f:g} in a {L[0]:g} × {L[1]:g} µm tile holds about {expected:.2g} platelets of this width law "
+                         f"and thickness ({t:g} µm), more than {MAX_PLATELETS:,} (memory and time): lower pvc, a smaller tile, or "
+                         "thicker or wider platelets")
     if overlap_test not in OVERLAP_TESTS:
         raise ValueError(f"overlap_test must be one of {OVERLAP_TESTS}, got {overlap_test!r}")
-    if isinstance(max_attempts, bool) or int(max_attempts) != max_attempts or max_attempts < 0:
-        raise ValueError(f"max_attempts must be an integer ≥ 0, got {max_attempts!r}")
-    max_attempts = int(max_attempts)
+    max_attempts = Range(0, None, integer=True).check("max_attempts", max_attempts)
 
     rng = numpy_rng(key_or_seed)
     volume = L[0] * L[1] * h_b
@@ -358,7 +370,8 @@ def generate_platelet_array(
     replacements = np.zeros(n, dtype=np.int64)
     failed = np.zeros(n, dtype=bool)
     if overlap_test != "none":
-        _remove_overlaps(centers, R, e, hz, L, h_b, overlap_test, max_attempts, rng, replacements, failed)
+        pulse = Heartbeat(heartbeat) if heartbeat is not None else None
+        _remove_overlaps(centers, R, e, hz, L, h_b, overlap_test, max_attempts, rng, replacements, failed, pulse)
     if failed.any():
         warnings.warn(
             f"{int(failed.sum())} of {n} platelets still overlap after {max_attempts} re-placements "
@@ -454,14 +467,14 @@ def boolean_platelet_array(
                          widths=jnp.full((count,), w), thickness=t, tile=L, basecoat_thickness=h_b)
 
 
-def _remove_overlaps(centers, R, e, hz, L, h_b, test, max_attempts, rng, replacements, failed) -> None:
+def _remove_overlaps(centers, R, e, hz, L, h_b, test, max_attempts, rng, replacements, failed, pulse=None) -> None:
     """Random sequential addition, hardest first; modifies centers/replacements/failed in place.
 
     Candidate positions of platelet i are tested in vectorised batches: the first holds its
     drawn position and fresh ones, sized from a running mean of the attempts recent platelets
     needed (about two expected successes), later batches double; the first non-overlapping
     candidate in draw order wins, so the drawn position is kept whenever it is free.
-    `replacements[i]` is the index of the winner (0: not moved).
+    `replacements[i]` is the index of the winner (0: not moved). `pulse`: a `Heartbeat` given the fraction placed.
     """
     h = aabb_half_extents(R, e)
     # Hardest first: order by the volume a platelet excludes to the mean neighbour: plates of
@@ -479,7 +492,9 @@ def _remove_overlaps(centers, R, e, hz, L, h_b, test, max_attempts, rng, replace
     min_image_only = bool(np.all(2 * h[:, :2].max(axis=0) <= 0.5 * Lv))
     zero = np.zeros(3)
     mean_trials = 1.0
-    for i in order:
+    for placed, i in enumerate(order):
+        if pulse is not None:
+            pulse(placed / len(order))
         hx, hy = h[i, 0], h[i, 1]
         done = 0  # candidate positions tried so far (the first is the drawn one)
         k = int(min(np.ceil(mean_trials), 1024))
