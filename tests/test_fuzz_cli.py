@@ -187,3 +187,34 @@ def test_edge_valid_array_gives_finite_json_and_its_pictures(pvc, d50, platelet_
     assert abs(data["pvc"] - pvc) <= 0.5 * largest_volume / (tile * tile * basecoat) + 1e-12, (argv, data)
     pictures = sorted(out.glob("*.png"))
     assert len(pictures) == 2 and all(p.stat().st_size > 1000 for p in pictures) and not list(out.glob(".*.tmp")), pictures
+
+
+@pytest.mark.parametrize("argv", [
+    # grazing light on a wavy coat over a white primer, the widest platelets, sparse, the largest seed
+    ["--brdf", "mirror", "--illumination", "85", "--aspecular=0,45,170", "--waviness", "15", "--primer-albedo", "1", "--pvc", "0.01",
+     "--d50", "50", "--seed", str(2**62)],
+    # the smoothest and the longest-correlated Kirchhoff platelets, thin and sparse in a thick basecoat over a black primer, lit
+    # along the normal, seen at ±80°
+    ["--brdf", "kirchhoff", "--sigma", "1e-4", "--tau", "100", "--primer-albedo", "0", "--thickness", "60", "--pvc", "0.001",
+     "--platelet-thickness", "0.05", "--illumination", "1e-3", "--aspecular=-80,0,80"],
+], ids=["grazing-wavy-wide", "smooth-sparse-thin"])
+def test_edge_valid_simulate_gives_finite_results(argv, tmp_path, capsys):
+    """`simulate` (64 rays) at corners of its ranges: exit 0 with finite L*, standard errors and reflectance factors and an
+    energy ledger that closes, its JSON and plot written whole; or one line that names the option to change (exit 2)."""
+    import json
+
+    out = tmp_path / "sim"
+    code = main(["simulate", *argv, "--rays", "64", "--json", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err and code in (0, 2), (argv, captured.err)
+    if code == 2:
+        lines = [ln for ln in captured.err.strip().splitlines() if ln.startswith("paintjax")]
+        assert len(lines) == 1 and "--" in lines[0], (argv, captured.err)
+        assert not list(out.glob("*.json")), argv
+        return
+    data = json.loads(captured.out)
+    for key in ("L_star", "L_star_se", "reflectance_factor"):
+        assert all(math.isfinite(v) and v >= 0 for v in data[key]), (key, data[key])
+    assert sum(data["energy"].values()) == pytest.approx(1.0, abs=1e-6), data["energy"]
+    assert json.loads((out / "simulate.json").read_text())["rays"] == data["rays"]
+    assert (out / "simulate.png").stat().st_size > 1000 and not list(out.glob(".*.tmp"))

@@ -402,8 +402,12 @@ def platelet_table_arrays(
     num_widths: int = DEFAULT_NUM_WIDTHS,
     cache: bool = True,
     cache_dir=None,
+    heartbeat=None,
 ) -> tuple[dict, dict]:
     """Arrays of a platelet BRDF table, built or read from the content-hashed cache.
+
+    `heartbeat`: while the wave solver runs, called every few seconds as `heartbeat(fraction of the profiles
+    solved, seconds)` (`profile_averaged_lobes`; e.g. `paintjax._progress.print_progress`); not part of the key.
 
     Returns:
         (arrays, info) with info = {"cache_hit", "seconds", "key inputs"}.
@@ -448,7 +452,7 @@ def platelet_table_arrays(
             lobes = _wave_with_grazing_extension(
                 sigma_um, tau_um, inc, ts, length_um=length_um, num_profiles=num_profiles, seed=seed,
                 wavelength_um=wavelength_um, n_medium=n_medium, boundary=boundary, polarization=polarization,
-                correlation=correlation, points_per_wavelength=points_per_wavelength, metal_index=metal,
+                correlation=correlation, points_per_wavelength=points_per_wavelength, metal_index=metal, heartbeat=heartbeat,
             )
             solved = np.isin(inc, lobes[1])
             lobes = lobes[0]

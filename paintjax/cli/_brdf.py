@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._progress import print_progress
 from .._validate import Range
 from ..wave._checks import LOBE_RANGES
 from ._common import SEED, add_json_argument, add_output_argument, print_json
@@ -58,7 +59,7 @@ def compute(sigma=0.051, tau=0.64, wavelength=0.5, n=1.5, profiles=None, length=
     t0 = time.perf_counter()
     arrays, info = platelet_table_arrays(
         sigma, tau, source=source, wavelength_um=wavelength, n_medium=n, num_profiles=profiles, length_um=length,
-        seed=seed, method=method, cache=cache, cache_dir=cache_dir,
+        seed=seed, method=method, cache=cache, cache_dir=cache_dir, heartbeat=print_progress("brdf", f"of {profiles} profiles solved"),
     )
     table = TabulatedBRDF.from_arrays(arrays, coherent_width=coherent_lobe_width(wavelength, n, 16.0), n_medium=n)
     inc = np.asarray(CUT_INCIDENCE_DEG)
