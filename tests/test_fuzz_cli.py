@@ -48,11 +48,19 @@ RANGES = [
     ("fit", "--walkers", 2.0, None, ["--posterior"]),
     ("fit", "--tilt-platelets", 0.0, 1e6, ["--posterior", "--inputs", "rq"]),
     ("table1", "--target-se", 0.0, None, []),
+    ("table1", "--waviness", 0.0, 15.0, []),
+    ("demo", "--seed", 0.0, None, []),
+    ("posterior", "--walkers", 2.0, None, []),
+    ("posterior", "--min-ess", 0.0, None, []),
+    ("render", "--resolution", 16.0, 4096.0, ["--sample", "silver1"]),
+    ("render", "--spp", 1.0, 65536.0, ["--sample", "silver1"]),
+    ("render", "--seed", 0.0, 2.0**32 - 1, ["--sample", "silver1"]),
 ]
 
 
 #: Options that take integers: drawn as integers outside the range (and as text).
-INTEGER_OPTIONS = {"--rays", "--max-attempts", "--starts", "--max-steps", "--walkers", "--tilt-platelets", "--profiles"}
+INTEGER_OPTIONS = {"--rays", "--max-attempts", "--starts", "--max-steps", "--walkers", "--tilt-platelets", "--profiles", "--seed",
+                   "--resolution", "--spp"}
 
 
 def _invalid(option, lo, hi):
@@ -71,7 +79,7 @@ def _invalid(option, lo, hi):
 
 def _check(argv, option, tmp_path, capsys):
     out = tmp_path / "out"
-    code = main(argv + (["--out", str(out)] if argv[0] not in ("microfacet", "design") else []))
+    code = main(argv + (["--out", str(out)] if argv[0] not in ("microfacet", "design", "demo") else []))
     err = capsys.readouterr().err
     assert code == 2, (argv, code, err)
     lines = [ln for ln in err.splitlines() if ln.strip()]
