@@ -111,7 +111,10 @@ def test_readable_table(capsys):
         (["fit", "--data", "example", "--posterior", "--walkers", "7"], "--walkers must be even"),
         (["fit", "--no-figures"], "--no-figures applies to --data"),
         (["posterior", "--walkers", "3"], "--walkers must be even"),
-        (["fit", "--data", "example", "--starts", "0"], "--starts must be an integer ≥ 1"),
+        (["posterior", "--walkers", "100000"], "--walkers must be even, >= 2 × the sampled parameters and <= 4096"),
+        (["fit", "--starts", "1000000000"], "--starts must be an integer in [1, 1024]"),
+        (["fit", "--posterior", "--max-steps", "1000000000000"], "--max-steps must be an integer in [1, 10000000]"),
+        (["fit", "--data", "example", "--starts", "0"], "--starts must be an integer in [1, 1024]"),
         (["fit", "--data", "/nonexistent/panels.csv"], "--data file not found"),
     ],
 )

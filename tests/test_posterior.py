@@ -125,7 +125,7 @@ def test_log_posterior_is_vectorised_and_includes_error_terms():
 
 def test_posterior_bad_inputs():
     y = [140.0, 100.0, 50.0, 30.0, 20.0]
-    with pytest.raises(ValueError, match="walkers must be even and >= 2"):
+    with pytest.raises(ValueError, match="walkers must be even, >= 2"):
         sample_posterior(MIRROR, y, free=FREE, fixed=FIXED, walkers=3, progress=False)
     with pytest.raises(ValueError, match="measured must have 5 values"):
         sample_posterior(MIRROR, y[:4], free=FREE, fixed=FIXED, progress=False)

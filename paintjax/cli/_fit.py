@@ -7,6 +7,8 @@ import time
 
 from .._cache import enable_compilation_cache
 from .._validate import Range
+from ..inverse._fit import MAX_STARTS
+from ..inverse._posterior import MAX_WALKERS
 from ._common import SEED, add_json_argument, parse_floats, print_json
 
 #: Default forward model: the ray tracer through its wide-box emulator (shipped with the package).
@@ -38,10 +40,12 @@ def parse_free(text, default) -> tuple[str, ...]:
 
 
 #: The validation layer's ranges of `add_model_arguments`' options (flag → `Range`).
-MODEL_RANGES = {"--starts": Range(1, None, integer=True), "--seed": SEED}
+#: Most emcee steps of one run (a chain file of up to a few GB at the default walkers; a stopped run resumes).
+MAX_POSTERIOR_STEPS = 10_000_000
+MODEL_RANGES = {"--starts": Range(1, MAX_STARTS, integer=True), "--seed": SEED}
 #: The validation layer's ranges (flag → `Range`), checked before any model is built (the walkers' count, even and
 #: at least twice the sampled parameters, in `check_run_sizes` and `check_walkers`).
-RANGES = {**MODEL_RANGES, "--workers": Range(1, None, integer=True), "--max-steps": Range(1, None, integer=True),
+RANGES = {**MODEL_RANGES, "--workers": Range(1, None, integer=True), "--max-steps": Range(1, MAX_POSTERIOR_STEPS, integer=True),
           "--min-ess": Range(0.0, None), "--tilt-platelets": Range(0, 1_000_000, integer=True)}
 
 
@@ -207,8 +211,8 @@ def _posterior_setup(args, forward, measured, lsq_free, fixed):
 
 def check_run_sizes(args) -> None:
     """--walkers, for one panel and for --data alike (before any work; the other sizes are in `RANGES`)."""
-    if args.posterior and (args.walkers < 2 or args.walkers % 2):  # the full check (≥ 2 × sampled parameters) follows
-        raise ValueError(f"--walkers must be even and >= 2 × the sampled parameters, got {args.walkers}")
+    if args.posterior and (args.walkers < 2 or args.walkers % 2 or args.walkers > MAX_WALKERS):  # the full check (≥ 2 × sampled parameters) follows
+        raise ValueError(f"--walkers must be even, >= 2 × the sampled parameters and <= {MAX_WALKERS}, got {args.walkers}")
 
 
 def example_panels() -> str:

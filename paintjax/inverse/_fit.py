@@ -187,8 +187,10 @@ def _unidentified(Jx: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
     return (np.linalg.norm(vt[rank:], axis=0) > 1e-6) | (col == 0)
 
 
+#: Most least-squares starts of one fit (each is a compiled solve; the default is 8).
+MAX_STARTS = 1024
 #: The ranges of `fit_least_squares`' integer settings, checked before any work.
-FIT_RANGES = {"n_starts": Range(1, None, integer=True), "max_steps": Range(1, None, integer=True),
+FIT_RANGES = {"n_starts": Range(1, MAX_STARTS, integer=True), "max_steps": Range(1, None, integer=True),
               "continuations": Range(0, None, integer=True), "seed": Range(0, None, integer=True)}
 
 

@@ -406,10 +406,14 @@ def _initial_ball(lp: LogPosterior, init, walkers: int, rng, seed: int) -> np.nd
     return U
 
 
+#: Most emcee walkers (memory: the chain holds walkers × steps × parameters; the default is 32).
+MAX_WALKERS = 4096
+
+
 def check_walkers(walkers: int, parameters: int) -> None:
-    """An emcee ensemble needs an even number of walkers, at least 2 per sampled parameter (ValueError)."""
-    if walkers < 2 * parameters or walkers % 2:
-        raise ValueError(f"walkers must be even and >= 2 × {parameters} sampled parameters = {2 * parameters}, got {walkers}")
+    """An emcee ensemble needs an even number of walkers, at least 2 per sampled parameter, at most `MAX_WALKERS` (ValueError)."""
+    if walkers < 2 * parameters or walkers % 2 or walkers > MAX_WALKERS:
+        raise ValueError(f"walkers must be even, >= 2 × {parameters} sampled parameters = {2 * parameters} and <= {MAX_WALKERS}, got {walkers}")
 
 
 def check_chain(backend_path, meta: str, *, resume: bool = True, overwrite: bool = False) -> bool:
