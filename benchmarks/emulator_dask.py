@@ -34,10 +34,13 @@ import numpy as np  # noqa: E402
 from paintjax import atomic_write_json, enable_compilation_cache  # noqa: E402
 from paintjax.inverse import WIDE_TRACER_BOX, WIDE_TRACER_SETTINGS, TracerLStar, tracer_emulator  # noqa: E402
 
+#: The cores this process may use when it starts (a container may allow fewer than `os.cpu_count()`).
+CORES = sorted(os.sched_getaffinity(0))
+
 
 def pin_threads(core: int | None) -> None:
-    """Every thread of this process on `core` (None: on all the cores this process may use)."""
-    cores = {core} if core is not None else set(range(os.cpu_count()))
+    """Every thread of this process on `core` (None: on all of `CORES`)."""
+    cores = {core} if core is not None else set(CORES)
     for tid in os.listdir("/proc/self/task"):
         try:
             os.sched_setaffinity(int(tid), cores)
@@ -50,7 +53,7 @@ def build(workers: int, n_train: int, n_test: int, pin: bool) -> float:
 
     class PinToCore(WorkerPlugin):  # worker i on core i, before it imports JAX's runtime threads
         def setup(self, worker):
-            pin_threads(int(worker.name) % os.cpu_count())
+            pin_threads(CORES[int(worker.name) % len(CORES)])
 
     t0 = time.perf_counter()
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0") as cluster, Client(cluster) as client:
@@ -78,7 +81,7 @@ def main(argv=None) -> int:
     out["pinned"] = bool(args.pin)
     if args.pin:  # one design point's run on every core, then on one (the same θ, cached BRDF grid, compiled)
         theta = np.array([[3.0, 1.5, 0.04, 0.5]])
-        for label, core in (("all_cores", None), ("one_core", 0)):
+        for label, core in (("all_cores", None), ("one_core", CORES[0])):
             pin_threads(core)
             t0 = time.perf_counter()
             tracer(theta)

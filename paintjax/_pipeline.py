@@ -18,11 +18,11 @@ from importlib import resources
 import numpy as np
 
 from ._progress import print_progress
-from ._validate import Range, check_args
+from ._validate import SEED, Range, check_args
 from .instrument._geometry import MAX_POLAR_DEG
 from .microstructure._array import MAX_PVC
 from .optics._interface import MAX_WAVINESS_DEG
-from .wave._checks import MAX_SIGMA_UM, MAX_TAU_UM
+from .wave._checks import LOBE_RANGES
 from .wave._profiles import CORRELATIONS
 
 
@@ -41,13 +41,13 @@ D50_RANGE_UM = (1.0, 50.0)
 #: The valid ranges of a simulated paint's tilt law and roughness (σ and τ as the wave tables accept them) and of
 #: its array overrides (`array_overrides`), keyed by argument; the CLI checks the same ranges under its flags.
 PAINT_RANGES = {"shape": Range(0.0, None, lo_open=True, why="tilt gamma shape"), "scale": Range(0.0, None, "degrees", lo_open=True),
-                "sigma": Range(0.0, MAX_SIGMA_UM, "µm", lo_open=True), "tau": Range(0.0, MAX_TAU_UM, "µm", lo_open=True)}
+                "sigma": LOBE_RANGES["sigma_um"], "tau": LOBE_RANGES["tau_um"]}
 ARRAY_RANGES = {"pvc": Range(0.0, MAX_PVC, lo_open=True), "d50": Range(*D50_RANGE_UM, "µm"),
                 "platelet_thickness": Range(0.0, None, "µm", lo_open=True)}
 #: `simulate`'s scalar arguments, checked before any table, array or trace (the ray count by `check_ray_count`).
 SIMULATE_RANGES = {**PAINT_RANGES, "thickness": Range(0.0, None, "µm", lo_open=True), **ARRAY_RANGES,
                    "reflectance": Range(0.0, 1.0), "primer_albedo": Range(0.0, 1.0), "waviness": Range(0.0, MAX_WAVINESS_DEG, "degrees"),
-                   "illumination_deg": Range(0.0, MAX_POLAR_DEG, "degrees", lo_open=True), "seed": Range(0, None, integer=True)}
+                   "illumination_deg": Range(0.0, MAX_POLAR_DEG, "degrees", lo_open=True), "seed": SEED}
 
 
 def array_overrides(s, *, pvc=None, thickness=None, d50=None, platelet_thickness=None) -> dict:

@@ -66,6 +66,10 @@ class Range:
         return int(v) if self.integer else v
 
 
+#: A random seed: a whole number ≥ 0 (the ranges of every entry point that takes one).
+SEED = Range(0, None, integer=True)
+
+
 def _is_integral(value) -> bool:
     return isinstance(value, numbers.Integral) or (isinstance(value, float) and value.is_integer())
 

@@ -97,7 +97,7 @@ from jaxtyping import Array, Float
 from scipy.special import erf
 
 from .._cache import cached_arrays
-from ..wave._checks import MAX_TAU_UM, check_energy
+from ..wave._checks import MAX_SIGMA_UM, MAX_TAU_UM, check_energy
 from ..wave._solver import SOLVER_VERSION, default_spacing
 from ._analytic import (
     DEFAULT_PLATELET_WIDTH_UM,
@@ -412,7 +412,7 @@ def platelet_table_arrays(
     Returns:
         (arrays, info) with info = {"cache_hit", "seconds", "key inputs"}.
     """
-    check_positive("sigma_um", sigma_um, 10.0)
+    check_positive("sigma_um", sigma_um, MAX_SIGMA_UM)
     check_positive("tau_um", tau_um, MAX_TAU_UM)
     check_positive("wavelength_um", wavelength_um, 20.0)
     check_medium_index(n_medium)

@@ -7,10 +7,10 @@ from pathlib import Path
 
 from .._pipeline import array_overrides
 from .._progress import print_progress
-from .._validate import Range
+from .._validate import SEED, Range
 from ..microstructure._array import MAX_TILE_UM
 from ..microstructure._plots import plot_cross_section, plot_tilt_histogram
-from ._common import ARRAY_RANGES, SEED, add_array_arguments, add_json_argument, add_output_argument, print_json
+from ._common import ARRAY_RANGES, add_array_arguments, add_json_argument, add_output_argument, print_json
 
 #: The validation layer's ranges (flag → `Range`), checked before any work.
 RANGES = {"--seed": SEED, "--tile": Range(0.0, MAX_TILE_UM, "µm", lo_open=True), **ARRAY_RANGES,

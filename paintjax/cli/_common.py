@@ -9,7 +9,7 @@ import sys
 from .. import _pipeline as pipeline
 from .._io import to_jsonable
 from .._pipeline import D50_RANGE_UM
-from .._validate import Range, check_args
+from .._validate import check_args
 from ..microstructure._array import MAX_PVC
 
 
@@ -20,8 +20,7 @@ def as_flags(ranges, renamed=None) -> dict:
     return {renamed.get(k, "--" + k.replace("_", "-")): r for k, r in ranges.items()}
 
 
-#: Ranges shared by several sub-commands (each sub-command's `RANGES` maps its flags to `Range`s).
-SEED = Range(0, None, integer=True)
+#: Ranges shared by several sub-commands (each sub-command's `RANGES` maps its flags to `Range`s; --seed's is `paintjax._validate.SEED`):
 #: `add_paint_arguments`' flags (σ and τ as the wave tables accept them) and `add_array_arguments`'.
 PAINT_RANGES, ARRAY_RANGES = as_flags(pipeline.PAINT_RANGES), as_flags(pipeline.ARRAY_RANGES)
 

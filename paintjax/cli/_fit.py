@@ -6,10 +6,10 @@ from __future__ import annotations
 import time
 
 from .._cache import enable_compilation_cache
-from .._validate import Range
+from .._validate import SEED, Range
 from ..inverse._fit import MAX_STARTS
 from ..inverse._posterior import MAX_WALKERS
-from ._common import SEED, add_json_argument, parse_floats, print_json
+from ._common import add_json_argument, parse_floats, print_json
 
 #: Default forward model: the ray tracer through its wide-box emulator (shipped with the package).
 DEFAULT_FORWARD = "tracer-emulator-wide"

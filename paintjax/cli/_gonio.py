@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 from .._cache import enable_compilation_cache
-from .._validate import Range
+from .._validate import SEED, Range
 from ..appearance._carpaint import MAX_LOBES
 from ..appearance._gonio import DEFAULT_AZIMUTH, DEFAULT_INCIDENCES, DEFAULT_POLAR, DEFAULT_RAYS
 from ..tracer._trace import MAX_RAYS
 from ._common import (
     ARRAY_RANGES,
     PAINT_RANGES,
-    SEED,
     add_array_arguments,
     add_color_table_argument,
     add_json_argument,

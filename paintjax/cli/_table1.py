@@ -15,10 +15,10 @@ import numpy as np
 
 from .._cache import enable_compilation_cache
 from .._pipeline import DEFAULT_TARGET_SE, MIRROR_APERTURE_DEG, check_adaptive, flop_index_or_none, simulate
-from .._validate import Range
+from .._validate import SEED, Range
 from ..optics._interface import MAX_WAVINESS_DEG
 from ..tracer._trace import MAX_RAYS
-from ._common import SEED, add_json_argument, add_output_argument, format_optional, print_json
+from ._common import add_json_argument, add_output_argument, format_optional, print_json
 
 SAMPLES = ("silver1", "silver2")
 #: The validation layer's ranges (flag → `Range`), checked before any work (also `paintjax demo`'s).

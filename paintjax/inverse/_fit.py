@@ -37,7 +37,7 @@ import numpy as np
 import optimistix as optx
 
 from .._optx import result_message
-from .._validate import Range, check_args
+from .._validate import SEED, Range, check_args
 from ._forward import ForwardModel, Restricted, _jit_evaluate
 from ._observations import check_instrument_sd, check_measured, prior_arrays
 from ._parameters import ParameterSpec, make_spec, unit_to_value
@@ -191,7 +191,7 @@ def _unidentified(Jx: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
 MAX_STARTS = 1024
 #: The ranges of `fit_least_squares`' integer settings, checked before any work.
 FIT_RANGES = {"n_starts": Range(1, MAX_STARTS, integer=True), "max_steps": Range(1, None, integer=True),
-              "continuations": Range(0, None, integer=True), "seed": Range(0, None, integer=True)}
+              "continuations": Range(0, None, integer=True), "seed": SEED}
 
 
 def fit_least_squares(

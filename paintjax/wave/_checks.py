@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from .._validate import Range
+from .._validate import SEED, Range
 from ..optics._aluminium import WAVELENGTH_RANGE
 
 #: Most scattering angles of one solve.
@@ -73,7 +73,7 @@ LOBE_RANGES = {
     "n_medium": Range(1.0, 5.0, why="binder refractive index"),
     "length_um": Range(0.0, 1e6, "µm", lo_open=True),
     "num_profiles": Range(1, MAX_PROFILES, integer=True),
-    "seed": Range(0, None, integer=True),
+    "seed": SEED,
     "points_per_wavelength": Range(4.0, 200.0),
 }
 #: The wavelength range for perfect conductors or a given metal index.
