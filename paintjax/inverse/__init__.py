@@ -10,6 +10,7 @@ orientation measurement for the tilt law), which say what the published inputs i
 from ._analytic import AnalyticForward
 from ._design import DesignResult, design_to_target
 from ._emulator import Emulator, build_emulator, emulator_check, fit_emulator
+from ._error_model import EmulatorError, fit_emulator_error
 from ._fit import FitResult, fit_least_squares
 from ._forward import CallableForward, ForwardModel
 from ._measured_inputs import MeasuredInputs, posterior_predictive_check
@@ -53,6 +54,8 @@ __all__ = [
     "DesignResult",
     "design_to_target",
     "Emulator",
+    "EmulatorError",
+    "fit_emulator_error",
     "build_emulator",
     "emulator_check",
     "fit_emulator",

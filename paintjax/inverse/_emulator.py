@@ -26,11 +26,12 @@ from jaxtyping import Array, ArrayLike, Float
 from .._cache import default_cache_dir, shipped
 from .._io import atomic_savez
 from ..instrument._geometry import STANDARD_ASPECULAR
+from ._error_model import EmulatorError, fit_emulator_error
 from ._forward import ForwardModel, Restricted, _assemble
 from ._parameters import ParameterSpec
 
 EMULATOR_VERSION = 1  # meaning of the cached design evaluations (bump to re-run them)
-EMULATOR_FIT_VERSION = 4  # meaning of the fit on top of them (a change only re-fits, from the cached design)
+EMULATOR_FIT_VERSION = 5  # meaning of the fit on top of them (a change only re-fits, from the cached design)
 
 # ------------------------------------------------------------------------------------------
 # Gaussian-process emulator
@@ -100,8 +101,10 @@ class Emulator(ForwardModel):
     pooled with the leave-one-out errors of the training design, so that it rests on all
     n_train + n_test runs (the held-out set alone is small); `held_out_rms` and `held_out_loo_rms`
     are the two parts, `held_out_max` the largest held-out error (`held_out_max_by_angle` per angle).
+    `error` is the heavy-tailed, regional model of the same cross-validated errors (`EmulatorError`,
+    Student-t with a scale that varies over the box) that the likelihood uses (`residual_log_density`).
     `select` gives the GPs of some angles.
-    With a `mean_model`, L* = c₀ + c₁·L*_mean + GP([unit θ, standardised L*_mean at `mean_features`]).
+    With a `mean_model`, L* = c₀ + c₁·L*_mean[`mean_rows`] + GP([unit θ, standardised L*_mean at `mean_features`]).
     """
 
     X: Float[Array, "n q"]
@@ -126,6 +129,8 @@ class Emulator(ForwardModel):
     fit_id: str = eqx.field(static=True, default="")
     n_test: int = eqx.field(static=True, default=0)
     held_out_max_by_angle: tuple[float, ...] = eqx.field(static=True, default=())
+    error: EmulatorError | None = None
+    mean_rows: tuple[int, ...] = eqx.field(static=True, default=())
 
     @property
     def parameter_names(self):
@@ -143,13 +148,27 @@ class Emulator(ForwardModel):
         n_train, n_test = self.X.shape[0], self.n_test
         return np.sqrt((n_train * np.asarray(self.held_out_loo_rms) ** 2 + n_test * held**2) / (n_train + n_test))
 
+    @property
+    def error_df(self) -> float:
+        return math.inf if self.error is None else self.error.df
+
+    def residual_log_density(self, r, var, theta):
+        if self.error is None:
+            return super().residual_log_density(r, var, theta)
+        return self.error.residual_log_density(r, var, jnp.clip(self.spec.to_unit(theta), 0.0, 1.0))
+
+    def sample_residual(self, rng, var, theta):
+        if self.error is None:
+            return super().sample_residual(rng, var, theta)
+        return self.error.sample(rng, var, np.clip(np.asarray(self.spec.to_unit(jnp.asarray(theta))), 0.0, 1.0))
+
     def fingerprint(self):
         return f"Emulator({self.key},{hashlib.sha256(self.fit_id.encode()).hexdigest()[:12]},{list(self.angles)})"
 
-    def select(self, angles, mean: Restricted | None = None) -> Emulator:
+    def select(self, angles) -> Emulator:
         """The GPs of some of the angles, in the order given: the arrays sliced, so the predictions and
-        errors there are this emulator's, bit for bit. With a mean model, `mean` is the same model at
-        `angles` (a `Restricted` of the same parameters), which must include the GP features' angles."""
+        errors there are this emulator's, bit for bit (a mean model keeps all its angles: the GP features
+        may lie at angles not selected)."""
         want = tuple(float(a) for a in angles)
         if not want or len(set(want)) != len(want) or not set(want) <= set(self.angles):
             raise ValueError(f"angles must be distinct angles of this emulator, {list(self.angles)}, got {list(angles)}")
@@ -162,17 +181,10 @@ class Emulator(ForwardModel):
         by_angle = pick(self.held_out_max_by_angle)
         out = {"alpha": self.alpha[rows], "hyper": self.hyper[rows], "y_mean": self.y_mean[rows], "y_std": self.y_std[rows], "angles": want,
                "held_out_rms": pick(self.held_out_rms), "held_out_loo_rms": pick(self.held_out_loo_rms), "held_out_max_by_angle": by_angle,
-               "held_out_max": max(by_angle) if by_angle else self.held_out_max}
+               "held_out_max": max(by_angle) if by_angle else self.held_out_max,
+               "error": None if self.error is None else self.error.select(rows)}
         if self.mean_model is not None:
-            feature_angles = [self.angles[i] for i in self.mean_features]
-            if (mean is None or tuple(float(a) for a in mean.model.aspecular_deg) != want or tuple(mean.names) != self.spec.names
-                    or tuple(int(c) for c in mean._cols) != self.mean_cols or tuple(float(v) for v in mean._vals) != self.mean_vals):
-                raise ValueError(f"select needs the same mean model at the angles {list(want)} (parameters {self.spec.names}, "
-                                 "the same fixed values)")
-            if not set(feature_angles) <= set(want):
-                raise ValueError(f"the angles must include those of the GP features, {feature_angles}, got {list(want)}")
-            out |= {"mean_model": mean.model, "mean_coef": self.mean_coef[rows],
-                    "mean_features": tuple(want.index(a) for a in feature_angles)}
+            out |= {"mean_coef": self.mean_coef[rows], "mean_rows": tuple(self.mean_rows[i] for i in idx)}
         return dataclasses.replace(self, **out)
 
     def evaluate(self, theta):
@@ -180,7 +192,7 @@ class Emulator(ForwardModel):
         prior = 0.0
         if self.mean_model is not None:
             a = self.mean_model.evaluate(_assemble(self.spec.from_unit(z), self.mean_cols, self.mean_vals))
-            prior = self.mean_coef[:, 0] + self.mean_coef[:, 1] * a
+            prior = self.mean_coef[:, 0] + self.mean_coef[:, 1] * a[:, list(self.mean_rows)]
             z = jnp.concatenate([z, (a[:, list(self.mean_features)] - self.feature_shift) / self.feature_scale], axis=-1)
         q = z.shape[-1]
 
@@ -375,24 +387,26 @@ def fit_emulator(Z, Y, Zt, Yt, spec, mean, mean_features, angles, source, key) -
         out |= dict(mean_coef=coef, feature_shift=shift, feature_scale=scale)
     y_mean, y_std = target.mean(0), target.std(0) + 1e-12
     hyper, alpha = _fit_gp(jnp.asarray(X), jnp.asarray((target - y_mean) / y_std))
-    out |= dict(X=X, alpha=np.asarray(alpha), hyper=np.asarray(hyper), y_mean=y_mean, y_std=y_std,
-                loo_rms=_loo_rms(X, (target - y_mean) / y_std, np.asarray(hyper)) * y_std)
+    loo = _loo_errors(X, (target - y_mean) / y_std, np.asarray(hyper)) * y_std
+    out |= dict(X=X, alpha=np.asarray(alpha), hyper=np.asarray(hyper), y_mean=y_mean, y_std=y_std, loo_rms=np.sqrt(np.mean(loo**2, axis=0)))
     em = _emulator_from_arrays(out | dict(held_out_rms=np.zeros(Y.shape[1]), held_out_max=0.0, Zt=Zt), spec, angles, source, key, mean, mean_features)
     err = np.asarray(em(np.asarray(spec.from_unit(Zt)))) - Yt
     out["held_out_rms"] = np.sqrt(np.mean(err**2, axis=0))
     out["held_out_max"] = float(np.max(np.abs(err)))
     out["held_out_max_by_angle"] = np.max(np.abs(err), axis=0)
+    error = fit_emulator_error(np.concatenate([Z, Zt]), np.concatenate([loo, err]))
+    out |= dict(error_scale=np.asarray(error.scale), error_slope=np.asarray(error.slope), error_df=np.asarray(error.df))
     out["train_seconds"] = time.perf_counter() - t0
     return out
 
 
-def _loo_rms(X, Ys, hyper) -> np.ndarray:
-    """Leave-one-out RMS error of each standardised output column (closed form, α_i / (K⁻¹)_ii)."""
-    rms = []
+def _loo_errors(X, Ys, hyper) -> np.ndarray:
+    """Leave-one-out errors (n, m) of the standardised output columns (closed form, α_i / (K⁻¹)_ii)."""
+    out = []
     for k in range(Ys.shape[1]):
         Ki = np.linalg.inv(np.asarray(_gram(jnp.asarray(X), jnp.asarray(hyper[k]))))
-        rms.append(np.sqrt(np.mean((Ki @ Ys[:, k] / np.diag(Ki)) ** 2)))
-    return np.asarray(rms)
+        out.append(Ki @ Ys[:, k] / np.diag(Ki))
+    return np.stack(out, axis=1)
 
 
 def _emulator_from_arrays(a: dict, spec, angles, source, key, mean=None, mean_features=()) -> Emulator:
@@ -420,6 +434,8 @@ def _emulator_from_arrays(a: dict, spec, angles, source, key, mean=None, mean_fe
         fit_id=str(a.get("fit_id", "")),
         n_test=int(np.asarray(a["Zt"]).shape[0]) if "Zt" in a else 0,
         held_out_max_by_angle=tuple(float(v) for v in np.asarray(a.get("held_out_max_by_angle", ()))),
+        error=EmulatorError(a["error_scale"], a["error_slope"], float(a["error_df"])) if "error_scale" in a else None,
+        mean_rows=tuple(range(len(angles))) if mean is not None else (),
     )
 
 

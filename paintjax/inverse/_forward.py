@@ -2,8 +2,10 @@
 
 A `ForwardModel` names the parameters it consumes (`parameter_names`, a subset of
 `paintjax.inverse._parameters.PARAMETERS`), maps a batch θ (leading dim, columns in that order) to L* at
-the instrument's angles, and states an extra per-angle standard deviation `error_sd` that the
-likelihood adds (zero for direct models, the held-out error for emulators). Implementations:
+the instrument's angles, and states its own error: `error_sd` per angle (zero for direct models, the
+cross-validated RMS for emulators), which least squares adds to the instrument's, and the law the
+likelihood uses, `residual_log_density` (normal with `error_sd` by default; an emulator's is a
+heavy-tailed Student-t whose scale varies over its box, `paintjax.inverse._error_model`). Implementations:
 
 * `AnalyticForward` – the analytic single-scatter model of `paintjax.instrument._single_scatter` (milliseconds, jit and
   differentiable). Smooth (mirror) platelets, or rough platelets whose σ, τ enter through a
@@ -20,7 +22,7 @@ likelihood adds (zero for direct models, the held-out error for emulators). Impl
 * `Emulator` – a Gaussian-process emulator (Matérn-5/2, ARD, one GP per angle) of any forward
   callable, trained on a scrambled-Sobol design in the parameters' unit cube, with its held-out
   RMS error measured on an independent Latin-hypercube set, pooled with the training design's
-  leave-one-out errors, and exposed as `error_sd`. Built by
+  leave-one-out errors, and exposed as `error_sd` (and, for the likelihood, as `EmulatorError`). Built by
   `build_emulator`, cached on disk under a content-hashed key (atomic writes; the expensive design
   evaluations are check-pointed so an interrupted build resumes). Optionally physics-informed: a
   cheap `mean` model (the tracer emulator uses the analytic single-scatter model) gives a linear
@@ -64,6 +66,24 @@ class ForwardModel(eqx.Module):
     def error_sd(self) -> np.ndarray:
         """Per-angle standard deviation of the model's own error (added to the likelihood)."""
         return np.zeros(len(self.aspecular_deg))
+
+    @property
+    def error_df(self) -> float:
+        """Degrees of freedom of the model's own error (inf: normal, as `error_sd` says)."""
+        return math.inf
+
+    def residual_log_density(self, r: Float[Array, "n m"], var: Float[Array, "n m"], theta: Float[Array, "n p"]) -> Float[Array, "n m"]:
+        """log p(r) of a residual r = measured − model at θ, with Normal(0, var) measurement terms (instrument,
+        discrepancy) plus the model's own error (here normal with `error_sd`; an emulator's is heavy-tailed).
+        Traceable; elementwise per angle."""
+        v = var + jnp.asarray(self.error_sd) ** 2
+        return -0.5 * (r**2 / v + jnp.log(2.0 * jnp.pi * v))
+
+    def sample_residual(self, rng: np.random.Generator, var, theta) -> np.ndarray:
+        """Draws of the residual law of `residual_log_density` at θ (NumPy; var broadcast to (n, m))."""
+        v = np.asarray(var, float) + np.asarray(self.error_sd, float) ** 2
+        shape = (np.shape(theta)[0], len(self.aspecular_deg))
+        return rng.standard_normal(shape) * np.sqrt(np.broadcast_to(v, shape))
 
     @property
     def jittable(self) -> bool:

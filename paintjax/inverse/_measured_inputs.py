@@ -128,14 +128,17 @@ class KnownInputs(eqx.Module):
 
 
 def posterior_predictive_check(result, forward, measured, *, fixed=None, instrument_sd=0.3, max_draws: int = 400,
-                               seed: int = 0, angles=None) -> dict:
+                               seed: int = 0, angles=None, replicates: int = 500) -> dict:
     """Posterior-predictive check of the L*: are the measured values what the posterior expects?
 
-    For posterior draws θ_i (with their discrepancy δ_i, or the fixed one), the χ² of the measured L*
-    about the model curve, T_i = Σ_j (y_j − L_j(θ_i))² / s_ij², s² = σ_instr² + e_j² + δ_i², is compared
-    with that of replicated data, which is χ² with m degrees of freedom given θ_i:
-    p = mean_i P(χ²_m ≥ T_i). A small p (≲ 0.01) says the model with these inputs and errors does not
-    produce data like the measured ones.
+    For posterior draws θ_i (with their discrepancy δ_i, or the fixed one), the discrepancy statistic is
+    the deviance of the measured L* about the model curve, T_i = −2 Σ_j log p(y_j − L_j(θ_i)), under the
+    likelihood's residual law (instrument ⊕ δ_i normal, plus the forward model's own error,
+    `ForwardModel.residual_log_density`), and p = P(T(y_rep, θ) ≥ T(y, θ)) over the posterior and
+    replicated data y_rep from the same law. With a normal law, T is χ² with m degrees of freedom
+    given θ_i and p = mean_i P(χ²_m ≥ T_i) exactly; otherwise (an emulator's heavy-tailed error) p is
+    counted over `replicates` replicated data sets per draw, as (hits + 1) / (trials + 1). A small p
+    (≲ 0.01) says the model with these inputs and errors does not produce data like the measured ones.
 
     Forward inputs that were neither sampled nor in `fixed` take their registered defaults, as in the
     posterior. `instrument_sd` may be one per angle; `angles` (m booleans) leaves the others out (m
@@ -143,8 +146,9 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
 
     Returns:
         dict with "p_value", "chi2_median" (of T_i), the predictive band "L_star_q05", "L_star_q50",
-        "L_star_q95" (replicated data), and "draws" used.
+        "L_star_q95" (replicated data), "draws" used and "replicates" per draw (0: the exact χ² tail).
     """
+    import jax.numpy as jnp
     from scipy.stats import chi2 as chi2_dist
 
     names = result.names
@@ -156,13 +160,29 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
     free = tuple(n for n in names if n in forward.parameter_names)
     # inputs neither sampled nor fixed take their registered defaults, as in the posterior
     restricted = forward.restrict(free, {k: v for k, v in fixed.items() if k in forward.parameter_names})
-    L = evaluate_in_chunks(forward, np.asarray(restricted.full(S[:, [names.index(n) for n in free]])))
+    theta = np.asarray(restricted.full(S[:, [names.index(n) for n in free]]))
+    L = evaluate_in_chunks(forward, theta)
     have = np.ones(L.shape[1], bool) if angles is None else np.asarray(angles, bool)
     y = np.where(have, np.asarray(measured, float), 0.0)
     delta = S[:, names.index("discrepancy")] if "discrepancy" in names else np.full(len(S), float(fixed.get("discrepancy", 0.0)))
-    var = np.asarray(instrument_sd, float) ** 2 + np.asarray(forward.error_sd, float) ** 2 + delta[:, None] ** 2
-    T = np.sum(np.where(have, (y - L) ** 2 / var, 0.0), axis=1)
-    rep = L + rng.standard_normal(L.shape) * np.sqrt(var)
-    return {"p_value": float(np.mean(chi2_dist.sf(T, int(have.sum())))), "chi2_median": float(np.median(T)),
-            "L_star_q05": np.quantile(rep, 0.05, axis=0), "L_star_q50": np.quantile(rep, 0.5, axis=0),
-            "L_star_q95": np.quantile(rep, 0.95, axis=0), "draws": int(len(S))}
+    var = np.broadcast_to(np.asarray(instrument_sd, float) ** 2 + delta[:, None] ** 2, L.shape)
+
+    def deviance(resid, var_, theta_):
+        logp = np.asarray(forward.residual_log_density(jnp.asarray(resid), jnp.asarray(var_), jnp.asarray(theta_)))
+        return -2.0 * np.sum(np.where(have, logp, 0.0), axis=-1)
+
+    rep = L + forward.sample_residual(rng, var, theta)
+    if np.isinf(forward.error_df):  # normal: T − Σ log(2π v) is χ²_m given θ
+        v = var + np.asarray(forward.error_sd, float) ** 2
+        T = np.sum(np.where(have, (y - L) ** 2 / v, 0.0), axis=1)
+        p, n_rep = float(np.mean(chi2_dist.sf(T, int(have.sum())))), 0
+    else:
+        T = deviance(y - L, var, theta)
+        n_rep = int(replicates)
+        hits = 0
+        for _ in range(n_rep):
+            hits += int(np.sum(deviance(forward.sample_residual(rng, var, theta), var, theta) >= T))
+        p = (hits + 1.0) / (n_rep * len(T) + 1.0)
+    return {"p_value": p, "chi2_median": float(np.median(T)), "L_star_q05": np.quantile(rep, 0.05, axis=0),
+            "L_star_q50": np.quantile(rep, 0.5, axis=0), "L_star_q95": np.quantile(rep, 0.95, axis=0), "draws": int(len(S)),
+            "replicates": n_rep}

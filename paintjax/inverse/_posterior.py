@@ -1,9 +1,11 @@
 """Bayesian posterior of microstructure parameters given five-angle L* (emcee, ArviZ).
 
-Model: L*_meas,j ~ Normal(L*_model,j(θ), s_j²), s_j² = σ_instr² + δ² + e_j², with σ_instr the
+Model: L*_meas,j = L*_model,j(θ) + ε_j + e_j, ε_j ~ Normal(0, σ_instr² + δ²), with σ_instr the
 instrument repeatability (0.3 L*), δ the model-discrepancy scale (a free parameter with a
-half-Cauchy(5 L*) prior, or fixed) and e_j the forward model's own error (`error_sd`: zero for
-the analytic model, the held-out RMS for an emulator). Priors: the weak priors of
+half-Cauchy(5 L*) prior, or fixed) and e_j the forward model's own error, whose law the model states
+(`ForwardModel.residual_log_density`): none for the analytic model; for an emulator a Student-t whose
+scale varies over its box, fitted to its cross-validated errors (`EmulatorError`), plus, for the
+tracer emulators, the run-to-run spread as a normal term. Priors: the weak priors of
 `paintjax.inverse._parameters` (log-uniform for tilt shape/scale and roughness σ/τ over their boxes,
 uniform for bounded fractions, half-Cauchy for δ) — none centred on the measured values. The
 published inputs can enter as data instead (`inputs=`, a `MeasuredInputs`: their likelihood given the
@@ -193,15 +195,16 @@ class LogPosterior:
         d_col = spec.index("discrepancy") if "discrepancy" in spec.names else -1
         d_fixed = float(self.fixed.get("discrepancy", 0.0))
         y, have = jnp.asarray(np.where(self.angles, self.measured, 0.0)), jnp.asarray(self.angles)
-        var0 = jnp.asarray(self.sd**2 + np.asarray(self.forward.error_sd) ** 2)
+        var0 = jnp.asarray(self.sd**2)
         inputs, fixed_inputs = self.inputs, dict(self.restricted.fixed)
+        forward, restricted = self.forward, self.restricted
 
         @jax.jit
         def rest(U, L):
             x = spec.from_unconstrained(U)
             delta = x[:, d_col] if d_col >= 0 else jnp.full(U.shape[0], d_fixed)
             var = var0[None, :] + delta[:, None] ** 2
-            ll = -0.5 * jnp.sum(jnp.where(have, (L - y) ** 2 / var + jnp.log(2.0 * jnp.pi * var), 0.0), axis=-1)
+            ll = jnp.sum(jnp.where(have, forward.residual_log_density(y - L, var, restricted.full(x[:, cols])), 0.0), axis=-1)
             lp = ll + spec.log_prior_unconstrained(U)
             if inputs is not None:  # the published inputs as data (`MeasuredInputs`)
                 params = {n: jnp.full(U.shape[0], float(v)) for n, v in fixed_inputs.items()}

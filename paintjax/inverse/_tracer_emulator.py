@@ -5,14 +5,15 @@ emulator (`paintjax.inverse._emulator.build_emulator`) of `TracerLStar` (`paintj
 (96 training + 24 held-out tracer runs), built once and cached under a content hash, design
 evaluations check-pointed. It is physics-informed: per angle the GP models the tracer minus a
 linear function of the analytic single-scatter L* (`AnalyticForward`, diffuse 0), and the
-analytic L* at 15°, 25°, 45° are extra GP inputs; against a plain GP on the same design this cuts
-the held-out/leave-one-out error at 15° and 25° by about a third and leaves 45–110° unchanged
-(`experiments/build_tracer_emulator.py` records both). Its `error_sd` is the emulator's
+analytic L* at every traced angle are extra GP inputs (against the 15°, 25°, 45° features alone this
+cuts the wide emulator's cross-validated error at 45°, 75°, 110° from 3.4–3.9 to 2.6–2.9 L*). Its `error_sd` is the emulator's
 cross-validated RMS against the same CRN tracer (the 24 held-out errors pooled with the 96
 leave-one-out errors; `Emulator.error_sd`) combined in quadrature with the **CRN-vs-independent spread**: the RMS difference between
 the CRN evaluation and independent tracer runs (fresh generator arrays and rays, seeds ≠ the CRN
 seed) at `SPREAD_THETA` (`seed_spread`) — the error of one finite tile and ray count against
-another realisation, including the transport's bias.
+another realisation, including the transport's bias. The likelihood uses the same errors' heavy-tailed,
+regional model (`EmulatorError`: Student-t, ν ≈ 2.4, scale falling about fivefold from the smoothest
+to the roughest platelets) with the seed spread as a further normal term (`residual_log_density`).
 
 One GP per output angle. "tracer-emulator-wide" is built over the six MA98 in-plane angles of 45°
 illumination (−15° traced in its own pass, `TracerSettings.extra_aspecular`) and gives the standard
@@ -36,9 +37,6 @@ from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerS
 #: θ rows and seeds of the seed-spread measurement of the registered model (inside `TRACER_BOX`:
 #: a well-aligned and a poorly aligned paint, moderate roughness); seeds differ from the CRN seed 0.
 SPREAD_THETA = ((2.0, 1.5, 0.06, 0.7), (4.0, 2.5, 0.09, 0.5))
-#: Angles whose analytic single-scatter L* are extra GP inputs of the tracer emulator: there single
-#: scattering carries the signal; at 75°/110° it predicts almost nothing.
-ANALYTIC_FEATURE_ANGLES = (15.0, 25.0, 45.0)
 SPREAD_SEEDS = (101, 102, 103, 104, 105)
 
 
@@ -76,8 +74,8 @@ def tracer_emulator(
             (None: not measured, `error_sd` is the cross-validated RMS alone).
         progress: progress bar over the design and one line per tracer run.
         analytic_mean: physics-informed GP (default): the analytic single-scatter model
-            (`AnalyticForward`, diffuse 0) is the linear prior mean per angle and its L* at 15°,
-            25°, 45° (`ANALYTIC_FEATURE_ANGLES`) are extra GP inputs; False: a plain GP over θ.
+            (`AnalyticForward`, diffuse 0) is the linear prior mean per angle and its L* at every
+            traced angle are extra GP inputs; False: a plain GP over θ.
         client: a Dask `distributed.Client`: the design's tracer runs are tasks on its workers (each
             worker builds its BRDF grid and compiles the tracer once, `shared_tracer`).
         angles: the output angles, some of `settings.aspecular` (default the standard five, as the
@@ -109,7 +107,7 @@ def tracer_emulator(
     model = CallableForward(fn, TRACER_PARAMETERS, fn.settings.identity(), aspecular_deg=fn.angles).restrict(names, held)
     t0 = time.perf_counter()
     mean = _analytic_mean(fn.angles, names, held) if analytic_mean else None
-    features = tuple(fn.angles.index(a) for a in ANALYTIC_FEATURE_ANGLES) if analytic_mean else ()
+    features = tuple(range(len(fn.angles))) if analytic_mean else ()
     em = build_emulator(model, spec, n_train=n_train, n_test=n_test, seed=seed, cache_dir=cache_dir, batch=batch, progress=progress,
                         mean=mean, mean_features=features, client=client)
     build_seconds = time.perf_counter() - t0
@@ -121,7 +119,7 @@ def tracer_emulator(
         spread = seed_spread(fn, spread_theta, spread_seeds, cache_dir=array_cache)
     out = _wrap(em, spread, build_seconds=build_seconds, evaluations=fn.evaluations, direct=fn)
     if angles != out.angles:
-        out = out.select(angles, _analytic_mean(angles, names, held) if analytic_mean else None)
+        out = out.select(angles)
     return out
 
 
@@ -183,7 +181,8 @@ def _tracer_emulator_class():
         from ._emulator import Emulator
 
         class TracerEmulator(Emulator):
-            """GP emulator of the tracer; `error_sd` = sqrt(cross-validated RMS² + seed-to-seed spread²)."""
+            """GP emulator of the tracer; `error_sd` = sqrt(cross-validated RMS² + seed-to-seed spread²); the likelihood's
+            residual law is the GP's `EmulatorError` plus the seed-to-seed spread as a normal term."""
 
             seed_spread_sd: tuple = eqx.field(static=True, default=())
 
@@ -194,11 +193,22 @@ def _tracer_emulator_class():
                     return held
                 return np.sqrt(held**2 + np.asarray(self.seed_spread_sd) ** 2)
 
+            def _with_spread(self, var):
+                if self.error is None or not self.seed_spread_sd:
+                    return var  # (without an error model, error_sd already holds the spread)
+                return var + np.asarray(self.seed_spread_sd) ** 2
+
+            def residual_log_density(self, r, var, theta):
+                return super().residual_log_density(r, self._with_spread(var), theta)
+
+            def sample_residual(self, rng, var, theta):
+                return super().sample_residual(rng, self._with_spread(var), theta)
+
             def fingerprint(self):
                 return f"Tracer{super().fingerprint()},spread={self.seed_spread_sd}"  # the GP fit too, as Emulator's
 
-            def select(self, angles, mean=None):
-                out = super().select(angles, mean)
+            def select(self, angles):
+                out = super().select(angles)
                 if not self.seed_spread_sd:
                     return out
                 return dataclasses.replace(out, seed_spread_sd=tuple(self.seed_spread_sd[self.angles.index(a)] for a in out.angles))

@@ -3,7 +3,7 @@
 Three runs share the forward model and the L* likelihood (instrument repeatability ⊕ emulator error
 ⊕ a model discrepancy δ): the L* alone; the L* and the published inputs as data (`MeasuredInputs`);
 and the same with δ = 0, the hypothesis "the inputs and the L* agree within the stated errors",
-judged by the posterior-predictive p-value of the L* χ² (`posterior_predictive_check`).
+judged by the posterior-predictive p-value of the L* deviance (`posterior_predictive_check`).
 """
 
 from __future__ import annotations
