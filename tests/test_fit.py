@@ -176,6 +176,30 @@ def test_emulator_cached_with_measured_error(tmp_path):
         fit_least_squares(em, y, free=("shape",), fixed={"scale": 0.5})  # the GP would clip it to 1.2 silently
 
 
+def test_emulator_gp_is_the_closed_form_posterior_mean(tmp_path):
+    """The emulator's tinygp GPs against the textbook formula in NumPy/SciPy: with its fitted
+    hyperparameters, mean(z) = k(z, X) (K + s² I)⁻¹ y for the Matérn-5/2 kernel with ARD length scales."""
+    from scipy.spatial.distance import cdist
+
+    spec = make_spec(("shape", "scale"), {"shape": (1.5, 4.0), "scale": (1.2, 3.5)})
+    target = MIRROR.restrict(spec.names, {"diffuse": 0.1})
+    em = build_emulator(target, spec, n_train=24, n_test=8, seed=1, cache_dir=tmp_path, batch=32)
+    X, Z = np.asarray(em.X), np.random.default_rng(2).random((7, 2))
+    Y = np.asarray(target(np.asarray(spec.from_unit(X))))
+    for k in range(5):
+        h = np.asarray(em.hyper[k])
+        ls, amp2, noise = np.exp(h[:2]), np.exp(2 * h[2]), np.exp(2 * h[3]) + 1e-8
+
+        def matern(a, b):
+            r = np.sqrt(5.0) * cdist(a / ls, b / ls)
+            return amp2 * (1 + r + r**2 / 3) * np.exp(-r)
+
+        y = (Y[:, k] - float(em.y_mean[k])) / float(em.y_std[k])
+        mean = matern(Z, X) @ np.linalg.solve(matern(X, X) + noise * np.eye(len(X)), y)
+        want = float(em.y_mean[k]) + float(em.y_std[k]) * mean
+        np.testing.assert_allclose(np.asarray(em(np.asarray(spec.from_unit(Z))))[:, k], want, rtol=1e-9, atol=1e-9)
+
+
 def test_emulator_with_physics_informed_mean(tmp_path):
     """A cheap model as the GP's linear prior mean and extra inputs: fn = mirror model + a smooth,
     angle-dependent offset. The informed emulator must beat the plain GP on the same design, and

@@ -2,7 +2,9 @@
 
 `build_emulator` evaluates the forward map on a space-filling design over the prior box (checkpointed,
 cached under a content hash), fits one Matérn-5/2 GP per angle on top of an analytic mean, and
-reports held-out errors; `Emulator` is then a jittable `ForwardModel` with a model-error term.
+reports held-out errors; `Emulator` is then a jittable `ForwardModel` with a model-error term. The GPs
+are tinygp's (`GaussianProcess`, Matérn-5/2 with ARD length scales); their hyperparameters are fitted
+by Optimistix BFGS.
 """
 
 from __future__ import annotations
@@ -36,25 +38,37 @@ EMULATOR_FIT_VERSION = 5  # meaning of the fit on top of them (a change only re-
 # ------------------------------------------------------------------------------------------
 # Gaussian-process emulator
 # ------------------------------------------------------------------------------------------
-def _matern52(x1, x2, log_ls, log_amp):
-    d = (x1[:, None, :] - x2[None, :, :]) / jnp.exp(log_ls)
-    r = jnp.sqrt(jnp.sum(d**2, -1) + 1e-12)
-    s5 = jnp.sqrt(5.0) * r
-    return jnp.exp(2.0 * log_amp) * (1.0 + s5 + 5.0 / 3.0 * r**2) * jnp.exp(-s5)
+def _kernel(hyp, p: int):
+    """Matérn-5/2 kernel with ARD length scales (tinygp) from packed hyperparameters (log length scales
+    [p], log amplitude, log noise)."""
+    from tinygp import kernels, transforms
+
+    matern = kernels.Matern52(distance=kernels.distance.L2Distance())
+    return jnp.exp(2.0 * hyp[p]) * transforms.Linear(jnp.exp(-hyp[:p]), matern)
+
+
+def _noise(hyp, p: int):
+    return jnp.exp(2.0 * hyp[p + 1]) + 1e-8
+
+
+def _gp(X, hyp):
+    """The training GP (tinygp `GaussianProcess`, direct Cholesky solver) at the design X."""
+    from tinygp import GaussianProcess
+
+    p = X.shape[1]
+    return GaussianProcess(_kernel(hyp, p), X, diag=_noise(hyp, p))
 
 
 def _gram(X, hyp):
-    """Training covariance K of a GP with packed hyperparameters (log length scales, log amplitude, log noise)."""
+    """Training covariance K (kernel + noise on the diagonal)."""
     p = X.shape[1]
-    return _matern52(X, X, hyp[:p], hyp[p]) + (jnp.exp(2.0 * hyp[p + 1]) + 1e-8) * jnp.eye(X.shape[0])
+    return _kernel(hyp, p)(X, X) + _noise(hyp, p) * jnp.eye(X.shape[0])
 
 
 def _neg_log_marginal(hyp, X, y):
     p = X.shape[1]
     log_ls, log_noise = hyp[:p], hyp[p + 1]
-    L = jnp.linalg.cholesky(_gram(X, hyp))
-    a = jax.scipy.linalg.cho_solve((L, True), y)
-    nll = 0.5 * y @ a + jnp.sum(jnp.log(jnp.diag(L)))
+    nll = -_gp(X, hyp).log_probability(y)
     # Weak log-normal regularisation of the hyperparameters keeps the optimum away from degenerate corners.
     reg = 0.5 * jnp.sum(((log_ls - jnp.log(0.3)) / 1.5) ** 2) + 0.5 * ((log_noise - jnp.log(1e-3)) / 3.0) ** 2
     return nll + reg
@@ -87,8 +101,8 @@ def _fit_gp(X, Y):
         hs, vals = jax.vmap(lambda st: from_start(y, st[0], st[1]))(starts)
         h = hs[jnp.argmin(vals)]
         h = h.at[p + 1].set(jnp.clip(h[p + 1], jnp.log(1e-5), jnp.log(0.3)))
-        alpha = jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(_gram(X, h)), True), y)
-        return h, alpha
+        solver = _gp(X, h).solver
+        return h, solver.solve_triangular(solver.solve_triangular(y), transpose=True)  # K⁻¹ y
 
     return jax.vmap(fit_one, in_axes=1)(Y)
 
@@ -197,7 +211,7 @@ class Emulator(ForwardModel):
         q = z.shape[-1]
 
         def one(h, a):
-            return _matern52(z, self.X, h[:q], h[q]) @ a
+            return _kernel(h, q)(z, self.X) @ a
 
         gp = jax.vmap(one, out_axes=1)(self.hyper, self.alpha)
         return prior + self.y_mean + self.y_std * gp
