@@ -4,13 +4,16 @@
   the registered forward "tracer-emulator-wide")
   over a box wide enough to hold what the inputs and the L* imply: shape 1.2–12, scale 0.5–5°,
   σ 0.02–0.15 µm, τ 0.25–2.0 µm (BRDF-table grid 7 × 7 over σ, τ). Held-out error per angle reported.
-* *Likelihoods.* L*: instrument repeatability 0.3 ⊕ the emulator's error ⊕ a model discrepancy δ.
+* *Likelihoods.* L*: instrument repeatability 0.3 ⊕ a model discrepancy δ (normal) plus the emulator's own error
+  (Student-t with a scale that varies over the box, fitted to its cross-validated errors, ⊕ the run-to-run spread).
   Inputs (`paintjax.inverse.MeasuredInputs`): the published roughness reading through the virtual
   profilometer (`ReadingModel`, σ read as Rq) and the published tilt law as a gamma fit to an
   assumed 200 measured platelets (`gamma_fit_sd`).
 * *Runs per panel.* (a) L* alone, δ free; (b) L* and inputs, δ free; (c) L* and inputs, δ = 0: the
   hypothesis "inputs and L* agree within the stated errors", judged by a posterior-predictive
-  p-value of the L* χ².
+  p-value of the L* deviance.
+* *The emulator where the posteriors lie.* Direct tracer runs at `--check-draws` draws of each run with free
+  inputs: the emulator's error there, per angle.
 
 Writes experiments/output/calibrated_posterior/{summary.json, <panel>_*.nc, calibrated_posterior.png}.
 Run from the repository root: python experiments/calibrated_posterior.py [--build-only]
@@ -42,6 +45,39 @@ def emulator(progress: bool = True):
     print(f"emulator ready ({time.perf_counter() - t0:.0f} s): held-out RMS per angle {np.round(em.held_out_rms, 2).tolist()}, "
           f"max {np.round(em.held_out_max, 1).tolist()}; error_sd {np.round(np.asarray(em.error_sd), 2).tolist()}", flush=True)
     return em
+
+
+def emulator_at_posterior(em, runs: dict, per_run: int, seed: int) -> dict:
+    """The emulator against direct tracer runs (common random numbers: what it emulates) at `per_run` draws of
+    each posterior with free inputs: its held-out error where the posteriors lie, and those errors in units
+    of the likelihood's error scale (`EmulatorError`, Student-t) at each draw."""
+    import jax.numpy as jnp
+
+    from paintjax.inverse import direct_tracer, emulator_check
+
+    rng = np.random.default_rng(seed)
+    cols = None
+    draws = []
+    for r in runs:
+        cols = [r.names.index(k) for k in em.parameter_names]
+        draws.append(r.samples[rng.choice(r.samples.shape[0], per_run, replace=False)][:, cols])
+    x = np.concatenate(draws)
+    t0 = time.perf_counter()
+    direct = np.asarray(direct_tracer(em)(x))
+    seconds = time.perf_counter() - t0
+    c = emulator_check(em, lambda _: direct, x)
+    d = np.asarray(em(x)) - direct
+    scale = np.asarray(em.error.scale_at(jnp.clip(em.spec.to_unit(jnp.asarray(x)), 0.0, 1.0)))
+    return {"draws": x.tolist(), "emulator_minus_tracer": d.tolist(), "rms": np.asarray(c["rms"]).tolist(), "max_abs": np.asarray(c["max_abs"]).tolist(),
+            "median_abs": np.median(np.abs(d), 0).tolist(), "t_scale_at_draws": np.median(scale, 0).tolist(),
+            "within_t_68": float(np.mean(np.abs(d / scale) <= _t_quantile(em.error.df, 0.84))),
+            "within_t_95": float(np.mean(np.abs(d / scale) <= _t_quantile(em.error.df, 0.975))), "tracer_seconds": seconds}
+
+
+def _t_quantile(df: float, q: float) -> float:
+    from scipy.stats import t
+
+    return float(t.ppf(q, df))
 
 
 def plot(out: dict, path: Path) -> Path:
@@ -84,6 +120,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-steps", type=int, default=12000)
     ap.add_argument("--min-ess", type=float, default=1000.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--check-draws", type=int, default=8, help="direct tracer runs at this many draws of each posterior with free "
+                    "inputs, to measure the emulator's error where the posteriors lie (0: skip)")
     args = ap.parse_args(argv)
     enable_compilation_cache()
     t0 = time.perf_counter()
@@ -91,8 +129,10 @@ def main(argv=None) -> int:
     if args.build_only:
         return 0
     reading = build_reading_model(progress=True)
-    out = {"box": BOX, "tilt_platelets": TILT_PLATELETS, "emulator": {"held_out_rms": em.held_out_rms, "held_out_max": em.held_out_max,
-                                                                      "error_sd": np.asarray(em.error_sd)}, "panels": {}}
+    out = {"box": BOX, "tilt_platelets": TILT_PLATELETS, "emulator": {
+        "held_out_rms": em.held_out_rms, "held_out_max": em.held_out_max, "error_sd": np.asarray(em.error_sd),
+        "error_model": {"df": em.error.df, "scale": np.asarray(em.error.scale), "slope": dict(zip(em.spec.names, np.asarray(em.error.slope).tolist())),
+                        "seed_spread_sd": list(em.seed_spread_sd)}}, "panels": {}}
     OUT.mkdir(parents=True, exist_ok=True)
     for name in ("silver1", "silver2"):
         s = load_sample(name)
@@ -112,6 +152,13 @@ def main(argv=None) -> int:
             runs[label] = {"summary": r.to_dict(), "check": entry["check"], "input_shift": entry["input_shift"],
                            "draws": {n: np.asarray(v)[:: max(1, len(v) // 2000)] for n, v in draws.items()}}
         out["panels"][name] = {"measured": s.L_star, "runs": runs, "verdict": result["verdict"]}
+        free_runs = [result[k]["posterior"] for k in ("L* alone", "L* and inputs")]
+        if args.check_draws > 0:
+            chk = emulator_at_posterior(em, free_runs, args.check_draws, args.seed)
+            out["panels"][name]["emulator_at_posterior"] = chk
+            print(f"{name}: emulator − tracer at {len(chk['draws'])} posterior draws: RMS {np.round(chk['rms'], 2).tolist()}, "
+                  f"max {np.round(chk['max_abs'], 1).tolist()}; within the t law's 68 / 95 % intervals: "
+                  f"{chk['within_t_68']:.0%} / {chk['within_t_95']:.0%} ({chk['tracer_seconds']:.0f} s of tracing)", flush=True)
     out["seconds"] = time.perf_counter() - t0
     atomic_write_json(OUT / "summary.json", out)
     print(f"figure: {plot(out, OUT / 'calibrated_posterior.png')}; done in {out['seconds']:.0f} s", flush=True)

@@ -223,6 +223,24 @@ class LogPosterior:
         U = np.atleast_2d(np.asarray(U, dtype=float))
         return fwd(U[:, cols])
 
+    def jax_log_density(self):
+        """This log posterior as a JAX function of one unconstrained point, u (p,) → scalar: jit-able and
+        differentiable, for gradient-based samplers (NUTS). Needs a jit-able forward model (the analytic
+        model, an emulator)."""
+        if not self.forward.jittable:
+            raise ValueError(f"the forward model {self.forward.fingerprint()[:60]}… is not jit-able: a gradient-based sampler "
+                             "needs the analytic model or an emulator")
+        if self._fns is None:
+            self._build()
+        cols, _, rest = self._fns
+        spec, restricted = self.spec, self.restricted
+
+        def log_density(u):
+            U = jnp.asarray(u)[None, :]
+            return rest(U, restricted.evaluate(spec.from_unconstrained(U)[:, cols]))[0]
+
+        return log_density
+
     def description(self, walkers: int) -> str:
         """What a stored chain must have been sampled for to be resumed: data, model, parameters,
         priors, inputs and walkers (JSON; `check_chain`)."""

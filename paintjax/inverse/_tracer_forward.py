@@ -437,6 +437,6 @@ def register() -> None:
         "tracer-emulator-wide",
         wide_tracer_emulator,
         "'tracer-emulator' over shape 1.2–12, scale 0.5–5°, σ 0.02–0.15 µm, τ 0.25–2 µm, also at −15° (shipped; "
-        "error 3.4–4.0 L* per standard angle, 4.7 at −15°)",
+        "error 2.9–3.6 L* RMS per standard angle, 5.0 at −15°)",
         angles=ASPECULAR_45,
     )
