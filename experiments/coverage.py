@@ -47,7 +47,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 from scipy.stats import binom  # noqa: E402
 
-from paintjax import AnalyticForward, atomic_savefig, atomic_write_json, fit_least_squares, make_spec, sample_posterior  # noqa: E402
+from paintjax import AnalyticForward, atomic_savefig, atomic_write_json, cached_arrays, fit_least_squares, make_spec, sample_posterior  # noqa: E402
 from paintjax.inverse import LogPosterior  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "coverage"
@@ -86,11 +86,18 @@ def clean_curve(forward_name: str, options: dict, i: int, t) -> dict:
     if direct is None:
         return {"clean": np.asarray(forward(np.tile(np.r_[t, 0.0], (16, 1))))[0], "clean_se": np.zeros(5), "seconds": 0.0}
     t0 = direct.seconds
-    try:
+
+    def run_tracer():
         clean, clean_se = direct.evaluate(t[None], seed=1000 + i, return_se=True, mode="rsa")
+        return {"clean": clean[0], "clean_se": clean_se[0]}
+
+    # cached by the tracer's identity, θ and seed: a rerun with another emulator re-uses the same direct runs
+    inputs = {"tracer": direct.settings.identity(), "angles": list(direct.angles), "theta": t.tolist(), "seed": 1000 + i, "mode": "rsa"}
+    try:
+        arrays, _ = cached_arrays("coverage-clean-curve", inputs, run_tracer)
     except ValueError as err:  # no array for this tilt law in this film
         return {"error": str(err)}
-    return {"clean": clean[0], "clean_se": clean_se[0], "seconds": direct.seconds - t0}
+    return {"clean": arrays["clean"], "clean_se": arrays["clean_se"], "seconds": direct.seconds - t0}
 
 
 def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import types
 
+import equinox as eqx
 import jax
 import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
 from paintjax import load_sample
-from paintjax.inverse import LogPosterior, MeasuredInputs, gamma_fit_sd, posterior_predictive_check
+from paintjax.inverse import ForwardModel, LogPosterior, MeasuredInputs, gamma_fit_sd, posterior_predictive_check
 from paintjax.inverse._analytic import AnalyticForward
 
 MIRROR = AnalyticForward(rough=False)
@@ -65,6 +66,55 @@ def test_posterior_predictive_check_separates_fit_from_misfit():
     a = posterior_predictive_check(two, MIRROR, L, seed=0)
     b = posterior_predictive_check(two, MIRROR, L, fixed={"diffuse": 0.0}, seed=0)
     assert a["p_value"] == b["p_value"]
+
+
+class _HeavyTailed(ForwardModel):
+    """The mirror model with a stated Student-t error of scale 1 L* at every angle (as an emulator states its own)."""
+
+    df: float = eqx.field(static=True)
+    parameter_names = MIRROR.parameter_names
+    aspecular_deg = MIRROR.aspecular_deg
+
+    def evaluate(self, theta):
+        return MIRROR.evaluate(theta)
+
+    def fingerprint(self):
+        return f"heavy-tailed mirror, df={self.df}"
+
+    @property
+    def error_df(self):
+        return self.df
+
+    def _law(self):
+        from paintjax.inverse import EmulatorError
+
+        return EmulatorError(np.ones(5), np.zeros(3), self.df)
+
+    def residual_log_density(self, r, var, theta):
+        return self._law().residual_log_density(r, var, theta)
+
+    def sample_residual(self, rng, var, theta):
+        return self._law().sample(rng, var, np.asarray(theta))
+
+
+def test_predictive_check_under_a_heavy_tailed_model_error():
+    """Replicated data from a Student-t model error: data drawn from that law pass, data 8 L* off fail, and with
+    many degrees of freedom the counted p-value is the normal law's exact χ² tail (to its Monte Carlo error)."""
+    truth = np.array([2.6, 1.9, 0.15])
+    L = np.asarray(MIRROR(np.tile(truth, (16, 1))))[0]
+    rng = np.random.default_rng(4)
+    draws = truth + rng.normal(scale=[0.02, 0.02, 0.002], size=(64, 3))
+    result = types.SimpleNamespace(names=("shape", "scale", "diffuse"), samples=draws)
+    heavy = _HeavyTailed(3.0)
+    y = L + heavy.sample_residual(rng, np.full((1, 5), 0.09), truth[None])[0]
+    good = posterior_predictive_check(result, heavy, y, seed=0, replicates=200)
+    bad = posterior_predictive_check(result, heavy, L + np.array([8.0, -8.0, 8.0, -8.0, 8.0]), seed=0, replicates=200)
+    assert good["replicates"] == 200 and good["p_value"] > 0.05 and bad["p_value"] < 1e-3
+    near_normal = _HeavyTailed(100.0)
+    y = L + np.array([1.2, -0.8, 1.5, 0.3, -1.9])  # a χ² of ≈ 7.4 over 5 angles at unit scale
+    counted = posterior_predictive_check(result, near_normal, y, instrument_sd=1e-6, seed=0, replicates=400)["p_value"]
+    exact = posterior_predictive_check(result, AnalyticForward(rough=False), y, instrument_sd=1.0, seed=0)["p_value"]
+    assert counted == pytest.approx(exact, abs=0.02), (counted, exact)
 
 
 def test_panel_posteriors_give_a_verdict_from_the_strict_run():
