@@ -2,12 +2,13 @@
 
 In: a `PlateletArray` and its `UniformGrid`, a platelet BRDF, a `Geometry`, the coat. Out: a
 `TraceResult` (reflectance factors, L* with batch-means standard errors, the energy ledger),
-optionally combined over wavelengths as the instrument does; and a deterministic single-scatter
-reference of one tile to check it against.
+optionally combined over wavelengths as the instrument does; a deterministic single-scatter
+reference of one tile to check it against; and a per-stage time profile of the wavefront step.
 """
 
 from ._options import DEFAULT_LANES, LEDGER_KEYS, MAX_CREATED_ENERGY, EnergyCreationError, TracerOptions, default_lanes
 from ._plain import plain_trace_counts, plain_trace_seconds
+from ._profile import PROFILE_PARENTS, PROFILE_STAGES, profile_wavefront_step
 from ._result import TraceResult
 from ._scene import build_scene
 from ._spectral import SPECTRAL_NODES_NM, combine_spectral, lab_from_xyz, spectral_node_weights
@@ -23,6 +24,9 @@ __all__ = [
     "TracerOptions",
     "plain_trace_seconds",
     "plain_trace_counts",
+    "PROFILE_STAGES",
+    "PROFILE_PARENTS",
+    "profile_wavefront_step",
     "TraceResult",
     "build_scene",
     "SPECTRAL_NODES_NM",
