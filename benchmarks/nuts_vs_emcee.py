@@ -88,7 +88,7 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     a = ap.parse_args(argv)
     sample = load_sample("silver1")
-    forward = make_forward("tracer-emulator-wide")
+    forward = make_forward("tracer-emulator-wide", ("shape", "scale", "sigma", "tau"), {})
     inputs = MeasuredInputs.for_sample(sample, build_reading_model(progress=False))
     free = ("shape", "scale", "sigma", "tau", "discrepancy")
     res = {"machine": f"{platform.machine()} {os.cpu_count()} cores, {platform.python_implementation()} {platform.python_version()}, "

@@ -7,7 +7,7 @@
 * *Likelihoods.* L*: instrument repeatability 0.3 ⊕ a model discrepancy δ (normal) plus the emulator's own error
   (Student-t with a scale that varies over the box, fitted to its cross-validated errors, ⊕ the run-to-run spread).
   Inputs (`paintjax.inverse.MeasuredInputs`): the published roughness reading through the virtual
-  profilometer (`ReadingModel`, σ read as Rq) and the published tilt law as a gamma fit to an
+  profilometer (`ReadingModel`, σ read as Rq, or `--definition`) and the published tilt law as a gamma fit to an
   assumed 200 measured platelets (`gamma_fit_sd`).
 * *Runs per panel.* (a) L* alone, δ free; (b) L* and inputs, δ free; (c) L* and inputs, δ = 0: the
   hypothesis "inputs and L* agree within the stated errors", judged by a posterior-predictive
@@ -16,7 +16,7 @@
   inputs: the emulator's error there, per angle.
 
 Writes experiments/output/calibrated_posterior/{summary.json, <panel>_*.nc, calibrated_posterior.png}.
-Run from the repository root: python experiments/calibrated_posterior.py [--build-only]
+Run from the repository root: python experiments/calibrated_posterior.py [--build-only] [--definition local_pv|scan_pv]
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 from paintjax import atomic_savefig, atomic_write_json, enable_compilation_cache, load_sample, save_netcdf  # noqa: E402
-from paintjax.inverse import WIDE_TRACER_BOX, build_reading_model, panel_posteriors, wide_tracer_emulator  # noqa: E402
+from paintjax.inverse import SIGMA_DEFINITIONS, WIDE_TRACER_BOX, build_reading_model, panel_posteriors, wide_tracer_emulator  # noqa: E402
 
 OUT = Path("experiments/output/calibrated_posterior")
 BOX = WIDE_TRACER_BOX
@@ -106,7 +106,8 @@ def plot(out: dict, path: Path) -> Path:
         ax.set_xscale("log"), ax.set_yscale("log")
         ax.set_xlabel("σ [nm]"), ax.set_ylabel("τ [µm]"), ax.set_title(f"{name}: posterior draws of the true σ, τ", fontsize=9)
         ax.legend(fontsize=7, markerscale=3)
-    fig.suptitle("Posteriors with measurement models for the inputs (python experiments/calibrated_posterior.py)", fontsize=10)
+    fig.suptitle(f"Posteriors with measurement models for the inputs, σ read as {out['sigma_definition']} "
+                 f"(python experiments/calibrated_posterior.py --definition {out['sigma_definition']})", fontsize=10)
     fig.tight_layout()
     res = atomic_savefig(fig, path, dpi=130)
     plt.close(fig)
@@ -120,6 +121,9 @@ def main(argv=None) -> int:
     ap.add_argument("--max-steps", type=int, default=12000)
     ap.add_argument("--min-ess", type=float, default=1000.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--definition", default="rq", choices=SIGMA_DEFINITIONS,
+                    help="how the published σ was read (the profilometer model's σ definition; default rq). Output of "
+                         "other readings goes to experiments/output/calibrated_posterior_<definition>/")
     ap.add_argument("--check-draws", type=int, default=8, help="direct tracer runs at this many draws of each posterior with free "
                     "inputs, to measure the emulator's error where the posteriors lie (0: skip)")
     args = ap.parse_args(argv)
@@ -128,12 +132,13 @@ def main(argv=None) -> int:
     em = emulator()
     if args.build_only:
         return 0
+    out_dir = OUT if args.definition == "rq" else OUT.with_name(f"{OUT.name}_{args.definition}")
     reading = build_reading_model(progress=True)
-    out = {"box": BOX, "tilt_platelets": TILT_PLATELETS, "emulator": {
+    out = {"box": BOX, "tilt_platelets": TILT_PLATELETS, "sigma_definition": args.definition, "emulator": {
         "held_out_rms": em.held_out_rms, "held_out_max": em.held_out_max, "error_sd": np.asarray(em.error_sd),
         "error_model": {"df": em.error.df, "scale": np.asarray(em.error.scale), "slope": dict(zip(em.spec.names, np.asarray(em.error.slope).tolist())),
                         "seed_spread_sd": list(em.seed_spread_sd)}}, "panels": {}}
-    OUT.mkdir(parents=True, exist_ok=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
     for name in ("silver1", "silver2"):
         s = load_sample(name)
 
@@ -142,12 +147,12 @@ def main(argv=None) -> int:
             print(f"  posterior-predictive p = {entry['check']['p_value']:.3g}; input shifts (z) "
                   f"{ {k: round(v['z'], 2) for k, v in entry['input_shift'].items()} }", flush=True)
 
-        result = panel_posteriors(em, s, reading, tilt_platelets=TILT_PLATELETS, walkers=args.walkers, max_steps=args.max_steps,
+        result = panel_posteriors(em, s, reading, definition=args.definition, tilt_platelets=TILT_PLATELETS, walkers=args.walkers, max_steps=args.max_steps,
                                   min_ess=args.min_ess, seed=args.seed, on_run=report)
         runs = {}
         for label, entry in ((k, v) for k, v in result.items() if k != "verdict"):
             r = entry["posterior"]
-            save_netcdf(r.idata, OUT / f"{name}_{label.replace('*', '').replace(',', '').replace(' ', '_')}.nc")
+            save_netcdf(r.idata, out_dir / f"{name}_{label.replace('*', '').replace(',', '').replace(' ', '_')}.nc")
             draws = {n: r.draws(n) for n in r.names}
             runs[label] = {"summary": r.to_dict(), "check": entry["check"], "input_shift": entry["input_shift"],
                            "draws": {n: np.asarray(v)[:: max(1, len(v) // 2000)] for n, v in draws.items()}}
@@ -160,8 +165,8 @@ def main(argv=None) -> int:
                   f"max {np.round(chk['max_abs'], 1).tolist()}; within the t law's 68 / 95 % intervals: "
                   f"{chk['within_t_68']:.0%} / {chk['within_t_95']:.0%} ({chk['tracer_seconds']:.0f} s of tracing)", flush=True)
     out["seconds"] = time.perf_counter() - t0
-    atomic_write_json(OUT / "summary.json", out)
-    print(f"figure: {plot(out, OUT / 'calibrated_posterior.png')}; done in {out['seconds']:.0f} s", flush=True)
+    atomic_write_json(out_dir / "summary.json", out)
+    print(f"figure: {plot(out, out_dir / 'calibrated_posterior.png')}; done in {out['seconds']:.0f} s", flush=True)
     return 0
 
 

@@ -40,7 +40,7 @@ def main(argv=None) -> int:
     enable_compilation_cache()
     t0 = time.perf_counter()
     forward = make_forward("tracer-emulator-wide", FREE, {})
-    tracer = TracerLStar(WIDE_TRACER_SETTINGS)
+    tracer = TracerLStar(WIDE_TRACER_SETTINGS, angles=tuple(forward.aspecular_deg))  # the standard five, as the fits
     out = {"noise": args.noise, "replicates": args.replicates, "emulator_error_sd": np.asarray(forward.error_sd), "truths": []}
     for truth in TRUTHS:
         theta = np.array([[truth[n] for n in FREE]])

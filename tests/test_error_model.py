@@ -91,3 +91,19 @@ def test_shipped_tracer_emulator_errors_are_heavy_tailed_and_regional(tmp_path, 
     t_law = float(np.sum(np.asarray(em.residual_log_density(jnp.asarray(r), zero, jnp.asarray(theta)))))
     normal = float(np.sum(stats.norm.logpdf(r, scale=em.error_sd)))
     assert t_law > normal + 20, (t_law, normal)
+
+
+def test_added_spread_recovers_a_regional_normal_term():
+    """Residuals = the law's draws + a normal term whose scale varies over the box: maximum likelihood finds that term."""
+    from paintjax.inverse._error_model import fit_added_spread
+
+    law = EmulatorError([1.0, 1.5], [0.0, 0.0], 2.4)
+    rng = np.random.default_rng(5)
+    z = rng.random((600, 2))
+    sd, slope = np.array([2.0, 1.0]), np.array([1.5, -1.0])
+    extra = rng.standard_normal((600, 2)) * sd * np.exp((z - 0.5) @ slope)[:, None]
+    got_sd, got_slope = fit_added_spread(law, z, law.sample(rng, np.zeros((600, 2)), z) + extra)
+    np.testing.assert_allclose(got_sd, sd, rtol=0.2)
+    np.testing.assert_allclose(got_slope, slope, atol=0.4)
+    with pytest.raises(ValueError, match="must be finite"):
+        fit_added_spread(law, z, np.full((600, 2), np.nan))

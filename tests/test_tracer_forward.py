@@ -3,6 +3,7 @@
 Tiny settings: a 120 µm tile, 2048 rays, closed-form Kirchhoff tables on a 2 × 2 (σ, τ) grid.
 """
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -85,7 +86,7 @@ def test_registered_emulator_builds_from_a_tiny_design_and_caches(tmp_path):
     assert "tracer-emulator" in FORWARDS
     # a plain GP: six design points cannot support the analytic mean's three extra inputs
     opts = dict(settings=TINY, cache_dir=tmp_path, n_train=6, n_test=4, batch=5,
-                spread_theta=((2.5, 2.0, 0.055, 0.7),), spread_seeds=(21, 22), analytic_mean=False)
+                spread_theta=((2.5, 2.0, 0.055, 0.7),), spread_seeds=(21, 22), analytic_mean=False, independent=0)
     em = make_forward("tracer-emulator", ("shape", "scale", "diffuse"), {"sigma": 0.06, "tau": 0.7},
                       {"shape": (2.0, 4.0), "scale": (1.5, 3.0)}, **opts)
     assert em.parameter_names == ("shape", "scale")
@@ -108,3 +109,11 @@ def test_registered_emulator_builds_from_a_tiny_design_and_caches(tmp_path):
                        {"shape": (2.0, 4.0), "scale": (1.5, 3.0)}, **opts)
     assert tracer_info(em2)["tracer_evaluations_this_call"] == 0
     np.testing.assert_allclose(np.asarray(em2(np.tile(x, (16, 1))))[0], y_em)
+    # independent runs (fresh arrays and rays): only they are traced; their regional spread enters the likelihood
+    em3 = make_forward("tracer-emulator", ("shape", "scale"), {"sigma": 0.06, "tau": 0.7},
+                       {"shape": (2.0, 4.0), "scale": (1.5, 3.0)}, **(opts | {"independent": 4}))
+    info3 = tracer_info(em3)
+    assert info3["tracer_evaluations_this_call"] == 4 and info3["independent_runs"] == 4
+    assert len(em3.spread_sd) == 5 and len(em3.spread_slope) == 2 and em3.fingerprint() != em2.fingerprint()
+    r, var = jnp.full((1, 5), 3.0), jnp.full((1, 5), 0.09)
+    assert not np.allclose(em3.residual_log_density(r, var, jnp.asarray(x)), em2.residual_log_density(r, var, jnp.asarray(x)))

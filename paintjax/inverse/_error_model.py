@@ -145,3 +145,32 @@ def fit_emulator_error(z: np.ndarray, errors: np.ndarray) -> EmulatorError:
             best = res
     log_c, beta, df = unpack(best.x)
     return EmulatorError(np.exp(log_c), beta, df)
+
+
+def fit_added_spread(error: EmulatorError, z: np.ndarray, residuals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Maximum-likelihood normal spread added to an error law, with a log-linear scale over the box:
+    residuals r (n, m) at unit-cube points z (n, p) taken as r = e + ε, e ~ `error`, ε ~ Normal(0, s_j² exp(2γ·(z − ½))).
+    For an emulator of a tracer with common random numbers, r are its misses against independent runs and
+    ε is the run-to-run spread (another array, other rays), which the cross-validated law does not hold.
+
+    Returns:
+        (s (m,), γ (p,)).
+    """
+    import jax
+    from scipy import optimize
+
+    z, r = np.asarray(z, float), np.asarray(residuals, float)
+    if z.ndim != 2 or r.ndim != 2 or z.shape[0] != r.shape[0] or r.shape[1] != error.scale.shape[0] or not np.all(np.isfinite(r)):
+        raise ValueError(f"z (n, p) and residuals (n, {error.scale.shape[0]}) must be finite with the same n, got {z.shape} and {r.shape}")
+    m = r.shape[1]
+    zj, rj = jnp.asarray(z), jnp.asarray(r)
+
+    @jax.jit
+    def nll(q):
+        var = (jnp.exp(q[:m])[None, :] * jnp.exp((zj - 0.5) @ q[m:])[:, None]) ** 2
+        return -jnp.sum(error.residual_log_density(rj, var, zj))
+
+    grad = jax.jit(jax.grad(nll))
+    q0 = np.r_[np.log(np.std(r, axis=0) + 1e-9), np.zeros(z.shape[1])]
+    res = optimize.minimize(lambda q: float(nll(jnp.asarray(q))), q0, jac=lambda q: np.asarray(grad(jnp.asarray(q))), method="L-BFGS-B")
+    return np.exp(res.x[:m]), res.x[m:]

@@ -32,12 +32,16 @@ from pathlib import Path
 import numpy as np
 
 from ..instrument._geometry import STANDARD_ASPECULAR
-from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerSettings, seed_spread
+from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerSettings, independent_runs, seed_spread
 
 #: θ rows and seeds of the seed-spread measurement of the registered model (inside `TRACER_BOX`:
 #: a well-aligned and a poorly aligned paint, moderate roughness); seeds differ from the CRN seed 0.
 SPREAD_THETA = ((2.0, 1.5, 0.06, 0.7), (4.0, 2.5, 0.09, 0.5))
 SPREAD_SEEDS = (101, 102, 103, 104, 105)
+#: Independent tracer runs that judge the emulator as a measured panel would (a Latin hypercube of the box,
+#: one fresh array and ray seed each): the run-to-run spread the likelihood adds to the emulator's own error law
+#: is fitted to the emulator's misses there (`fit_added_spread`: normal, with a scale that varies over the box).
+INDEPENDENT_RUNS, INDEPENDENT_SEED0 = 24, 2000
 
 
 def tracer_emulator(
@@ -57,6 +61,7 @@ def tracer_emulator(
     analytic_mean: bool = True,
     client=None,
     angles=STANDARD_ASPECULAR,
+    independent: int = INDEPENDENT_RUNS,
     **kw,
 ):
     """Factory of the registered ``"tracer-emulator"``: a GP emulator of `TracerLStar` (cached).
@@ -71,7 +76,11 @@ def tracer_emulator(
             tables and the seed-spread record live in the array cache (`$PAINTJAX_CACHE`).
         n_train, n_test, seed, batch: design of `build_emulator`.
         spread_theta, spread_seeds: where and with which seeds the seed-to-seed spread is measured
-            (None: not measured, `error_sd` is the cross-validated RMS alone).
+            (None: not measured, `error_sd` is the cross-validated RMS alone, and no independent runs).
+        independent: independent tracer runs (fresh arrays and rays, seeds 2000 + i) at a Latin hypercube
+            of the box; the run-to-run spread that the likelihood adds to the emulator's cross-validated
+            error law is fitted to the emulator's misses against them, with a scale that varies over the box
+            (0: the seed spread at `spread_theta`, one number per angle).
         progress: progress bar over the design and one line per tracer run.
         analytic_mean: physics-informed GP (default): the analytic single-scatter model
             (`AnalyticForward`, diffuse 0) is the linear prior mean per angle and its L* at every
@@ -111,16 +120,32 @@ def tracer_emulator(
     em = build_emulator(model, spec, n_train=n_train, n_test=n_test, seed=seed, cache_dir=cache_dir, batch=batch, progress=progress,
                         mean=mean, mean_features=features, client=client)
     build_seconds = time.perf_counter() - t0
-    spread = None
+    spread, checked = None, None
     if spread_theta is not None:
         array_cache = None
         if cache_dir not in ("default", None):
             array_cache = Path(cache_dir)
         spread = seed_spread(fn, spread_theta, spread_seeds, cache_dir=array_cache)
-    out = _wrap(em, spread, build_seconds=build_seconds, evaluations=fn.evaluations, direct=fn)
+        if independent:
+            checked = _independent_check(em, model, fn, spec, int(independent), seed, array_cache)
+    out = _wrap(em, spread, build_seconds=build_seconds, evaluations=fn.evaluations, direct=fn, checked=checked)
     if angles != out.angles:
         out = out.select(angles)
     return out
+
+
+def _independent_check(em, model, fn, spec, n: int, seed: int, cache_dir) -> dict:
+    """The emulator against `n` independent tracer runs at a Latin hypercube of its box, and the run-to-run
+    spread (`fit_added_spread`) that its cross-validated error law needs to hold those misses."""
+    from ._emulator import _lhs
+    from ._error_model import fit_added_spread
+
+    z = _lhs(n, len(spec), seed + 7)
+    theta = np.asarray(spec.from_unit(z))
+    runs = independent_runs(fn, np.asarray(model.full(theta)), [INDEPENDENT_SEED0 + i for i in range(n)], cache_dir=cache_dir)
+    miss = np.asarray(em(theta)) - runs["L"]
+    sd, slope = fit_added_spread(em.error, z, miss)
+    return {"sd": sd, "slope": slope, "rms": np.sqrt(np.mean(miss**2, axis=0)), "max": np.max(np.abs(miss), axis=0), "n": n}
 
 
 def _analytic_mean(angles, names, held):
@@ -141,13 +166,15 @@ _INFO: dict[str, dict] = {}
 _DIRECT: dict[str, TracerLStar] = {}
 
 
-def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, direct: TracerLStar):
+def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, direct: TracerLStar, checked: dict | None = None):
     from ._emulator import Emulator
 
     class_ = _tracer_emulator_class()
     fields = {f.name: getattr(em, f.name) for f in dataclasses.fields(Emulator)}
     sd = () if spread is None else tuple(float(v) for v in np.asarray(spread["sd"]))
-    out = class_(**fields, seed_spread_sd=sd)
+    extra = {} if checked is None else {"spread_sd": tuple(float(v) for v in checked["sd"]),
+                                        "spread_slope": tuple(float(v) for v in checked["slope"])}
+    out = class_(**fields, seed_spread_sd=sd, **extra)
     _INFO[em.key] = {
         "held_out_rms_crn": list(em.held_out_rms),
         "loo_rms_crn": list(em.held_out_loo_rms),
@@ -159,6 +186,9 @@ def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, di
         "seed_spread_L_crn": None if spread is None else np.asarray(spread["L_crn"]).tolist(),
         "seed_sd_independent": None if spread is None else np.asarray(spread["seed_sd"]).tolist(),
         "error_sd": np.asarray(out.error_sd).tolist(),
+        "independent_rms": None if checked is None else checked["rms"].tolist(),
+        "independent_max": None if checked is None else checked["max"].tolist(),
+        "independent_runs": 0 if checked is None else checked["n"],
         "build_seconds_this_call": build_seconds,
         "tracer_evaluations_this_call": evaluations,
         "key": em.key,
@@ -177,14 +207,19 @@ def _tracer_emulator_class():
     global _CLASS
     if _CLASS is None:
         import equinox as eqx
+        import jax.numpy as jnp
 
         from ._emulator import Emulator
 
         class TracerEmulator(Emulator):
-            """GP emulator of the tracer; `error_sd` = sqrt(cross-validated RMS² + seed-to-seed spread²); the likelihood's
-            residual law is the GP's `EmulatorError` plus the seed-to-seed spread as a normal term."""
+            """GP emulator of the tracer; `error_sd` = sqrt(cross-validated RMS² + seed-to-seed spread²). The likelihood's
+            residual law is the GP's cross-validated `EmulatorError` plus the run-to-run spread as a normal term: fitted
+            over the box to the misses against independent tracer runs (`spread_sd`, `spread_slope`) where those were
+            made, else the seed spread at `SPREAD_THETA`."""
 
             seed_spread_sd: tuple = eqx.field(static=True, default=())
+            spread_sd: tuple = eqx.field(static=True, default=())
+            spread_slope: tuple = eqx.field(static=True, default=())
 
             @property
             def error_sd(self):
@@ -193,25 +228,34 @@ def _tracer_emulator_class():
                     return held
                 return np.sqrt(held**2 + np.asarray(self.seed_spread_sd) ** 2)
 
-            def _with_spread(self, var):
-                if self.error is None or not self.seed_spread_sd:
-                    return var  # (without an error model, error_sd already holds the spread)
-                return var + np.asarray(self.seed_spread_sd) ** 2
+            def _with_spread(self, var, theta):
+                """var + the run-to-run spread: fitted over the box where independent runs were made, else the
+                seed spread (without an error law, error_sd already holds the spread)."""
+                if self.error is None:
+                    return var
+                if self.spread_sd:
+                    z = jnp.clip(self.spec.to_unit(jnp.asarray(theta)), 0.0, 1.0)
+                    return var + (jnp.asarray(self.spread_sd)[None, :] * jnp.exp((z - 0.5) @ jnp.asarray(self.spread_slope))[:, None]) ** 2
+                return var + np.asarray(self.seed_spread_sd) ** 2 if self.seed_spread_sd else var
 
             def residual_log_density(self, r, var, theta):
-                return super().residual_log_density(r, self._with_spread(var), theta)
+                return super().residual_log_density(r, self._with_spread(var, theta), theta)
 
             def sample_residual(self, rng, var, theta):
-                return super().sample_residual(rng, self._with_spread(var), theta)
+                return super().sample_residual(rng, np.asarray(self._with_spread(var, theta)), theta)
 
             def fingerprint(self):
-                return f"Tracer{super().fingerprint()},spread={self.seed_spread_sd}"  # the GP fit too, as Emulator's
+                added = f",added={np.round(self.spread_sd, 6).tolist()}{np.round(self.spread_slope, 6).tolist()}" if self.spread_sd else ""
+                return f"Tracer{super().fingerprint()},spread={self.seed_spread_sd}{added}"  # the GP fit too, as Emulator's
 
             def select(self, angles):
                 out = super().select(angles)
+                rows = [self.angles.index(a) for a in out.angles]
+                if self.spread_sd:
+                    out = dataclasses.replace(out, spread_sd=tuple(self.spread_sd[i] for i in rows))
                 if not self.seed_spread_sd:
                     return out
-                return dataclasses.replace(out, seed_spread_sd=tuple(self.seed_spread_sd[self.angles.index(a)] for a in out.angles))
+                return dataclasses.replace(out, seed_spread_sd=tuple(self.seed_spread_sd[i] for i in rows))
 
         _CLASS = TracerEmulator
     return _CLASS
@@ -222,7 +266,7 @@ def tracer_info(emulator) -> dict:
     info = dict(_INFO[emulator.key])
     idx = [info["angles"].index(a) for a in emulator.angles]
     for k in ("held_out_rms_crn", "loo_rms_crn", "cv_rms_crn", "held_out_max_by_angle", "seed_spread_sd", "seed_sd_independent",
-              "error_sd"):
+              "error_sd", "independent_rms", "independent_max"):
         if info[k]:
             info[k] = [info[k][i] for i in idx]
     for k in ("seed_spread_L", "seed_spread_L_crn"):

@@ -402,6 +402,30 @@ def seed_spread(fn: TracerLStar, theta: Sequence[Sequence[float]], seeds: Sequen
     return {"sd": sd, "seed_sd": seed_sd, "L": L, "se": np.asarray(d["se"]), "L_crn": L0, "theta": theta, "seeds": seeds}
 
 
+def independent_runs(fn: TracerLStar, theta: Sequence[Sequence[float]], seeds: Sequence[int], *, cache_dir=None) -> dict:
+    """One independent tracer run per row of `theta` (fresh generator array and rays, seed `seeds[i]`, as
+    `paintjax simulate`): what a measured panel is, against which an emulator of the CRN tracer is judged.
+    Cached on disk by content (`cached_arrays`, kind "tracer-independent-runs").
+
+    Returns:
+        dict with "L" and "se" (rows, m) at `fn.angles`, "theta", "seeds".
+    """
+    from .._cache import cached_arrays
+
+    theta = np.atleast_2d(np.asarray(theta, float))
+    seeds = [int(s) for s in seeds]
+    if len(seeds) != theta.shape[0] or len(set(seeds)) != len(seeds) or fn.settings.seed in seeds:
+        raise ValueError(f"independent_runs needs one distinct seed per row of theta ({theta.shape[0]}), none the CRN seed {fn.settings.seed}")
+    inputs = {"identity": fn.settings.identity(), "theta": theta, "seeds": seeds, "angles": list(fn.angles), "version": 1}
+
+    def build():
+        runs = [fn.evaluate(t[None], seed=s, return_se=True, mode="rsa") for t, s in zip(theta, seeds)]
+        return {"L": np.concatenate([r[0] for r in runs]), "se": np.concatenate([r[1] for r in runs])}
+
+    d, _ = cached_arrays("tracer-independent-runs", inputs, build, folder=cache_dir)
+    return {"L": np.asarray(d["L"]), "se": np.asarray(d["se"]), "theta": theta, "seeds": seeds}
+
+
 _SHARED: dict = {}
 
 
