@@ -13,7 +13,8 @@ the CRN evaluation and independent tracer runs (fresh generator arrays and rays,
 seed) at `SPREAD_THETA` (`seed_spread`) — the error of one finite tile and ray count against
 another realisation, including the transport's bias. The likelihood uses the same errors' heavy-tailed,
 regional model (`EmulatorError`: Student-t, ν ≈ 2.4, scale falling about fivefold from the smoothest
-to the roughest platelets) with the seed spread as a further normal term (`residual_log_density`).
+to the roughest platelets) plus the run-to-run spread as a normal term whose scale varies over the box,
+fitted to the emulator's misses against `INDEPENDENT_RUNS` independent tracer runs (`residual_log_density`).
 
 One GP per output angle. "tracer-emulator-wide" is built over the six MA98 in-plane angles of 45°
 illumination (−15° traced in its own pass, `TracerSettings.extra_aspecular`) and gives the standard
