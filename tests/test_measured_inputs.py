@@ -115,6 +115,8 @@ def test_predictive_check_under_a_heavy_tailed_model_error():
     counted = posterior_predictive_check(result, near_normal, y, instrument_sd=1e-6, seed=0, replicates=400)["p_value"]
     exact = posterior_predictive_check(result, AnalyticForward(rough=False), y, instrument_sd=1.0, seed=0)["p_value"]
     assert counted == pytest.approx(exact, abs=0.02), (counted, exact)
+    with pytest.raises(ValueError, match=r"replicates must be an integer in \[1, 100000\]"):
+        posterior_predictive_check(result, heavy, y, replicates=0)
 
 
 def test_panel_posteriors_give_a_verdict_from_the_strict_run():

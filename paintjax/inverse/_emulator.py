@@ -181,8 +181,8 @@ class Emulator(ForwardModel):
 
     def select(self, angles) -> Emulator:
         """The GPs of some of the angles, in the order given: the arrays sliced, so the predictions and
-        errors there are this emulator's, bit for bit (a mean model keeps all its angles: the GP features
-        may lie at angles not selected)."""
+        errors there are this emulator's (to rounding: XLA may sum in another order for fewer rows). A mean
+        model keeps all its angles: the GP features may lie at angles not selected."""
         want = tuple(float(a) for a in angles)
         if not want or len(set(want)) != len(want) or not set(want) <= set(self.angles):
             raise ValueError(f"angles must be distinct angles of this emulator, {list(self.angles)}, got {list(angles)}")

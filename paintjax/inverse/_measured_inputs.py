@@ -151,6 +151,8 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
     import jax.numpy as jnp
     from scipy.stats import chi2 as chi2_dist
 
+    if isinstance(replicates, bool) or int(replicates) != replicates or not 1 <= replicates <= 100_000:
+        raise ValueError(f"replicates must be an integer in [1, 100000], got {replicates!r}")
     names = result.names
     S = np.asarray(result.samples)
     rng = np.random.default_rng(seed)
