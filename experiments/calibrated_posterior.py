@@ -51,8 +51,6 @@ def emulator_at_posterior(em, runs: dict, per_run: int, seed: int) -> dict:
     """The emulator against direct tracer runs (common random numbers: what it emulates) at `per_run` draws of
     each posterior with free inputs: its held-out error where the posteriors lie, and those errors in units
     of the likelihood's error scale (`EmulatorError`, Student-t) at each draw."""
-    import jax.numpy as jnp
-
     from paintjax.inverse import direct_tracer, emulator_check
 
     rng = np.random.default_rng(seed)
@@ -67,7 +65,7 @@ def emulator_at_posterior(em, runs: dict, per_run: int, seed: int) -> dict:
     seconds = time.perf_counter() - t0
     c = emulator_check(em, lambda _: direct, x)
     d = np.asarray(em(x)) - direct
-    scale = np.asarray(em.error.scale_at(jnp.clip(em.spec.to_unit(jnp.asarray(x)), 0.0, 1.0)))
+    scale = np.asarray(em.error.scale_at(em.unit_coordinates(x)))
     return {"draws": x.tolist(), "emulator_minus_tracer": d.tolist(), "rms": np.asarray(c["rms"]).tolist(), "max_abs": np.asarray(c["max_abs"]).tolist(),
             "median_abs": np.median(np.abs(d), 0).tolist(), "t_scale_at_draws": np.median(scale, 0).tolist(),
             "within_t_68": float(np.mean(np.abs(d / scale) <= _t_quantile(em.error.df, 0.84))),

@@ -166,15 +166,19 @@ class Emulator(ForwardModel):
     def error_df(self) -> float:
         return math.inf if self.error is None else self.error.df
 
+    def unit_coordinates(self, theta):
+        """θ in the unit cube of the box, clipped into it (as the GPs see it)."""
+        return jnp.clip(self.spec.to_unit(jnp.asarray(theta)), 0.0, 1.0)
+
     def residual_log_density(self, r, var, theta):
         if self.error is None:
             return super().residual_log_density(r, var, theta)
-        return self.error.residual_log_density(r, var, jnp.clip(self.spec.to_unit(theta), 0.0, 1.0))
+        return self.error.residual_log_density(r, var, self.unit_coordinates(theta))
 
     def sample_residual(self, rng, var, theta):
         if self.error is None:
             return super().sample_residual(rng, var, theta)
-        return self.error.sample(rng, var, np.clip(np.asarray(self.spec.to_unit(jnp.asarray(theta))), 0.0, 1.0))
+        return self.error.sample(rng, var, np.asarray(self.unit_coordinates(theta)))
 
     def fingerprint(self):
         return f"Emulator({self.key},{hashlib.sha256(self.fit_id.encode()).hexdigest()[:12]},{list(self.angles)})"
@@ -202,7 +206,7 @@ class Emulator(ForwardModel):
         return dataclasses.replace(self, **out)
 
     def evaluate(self, theta):
-        z = jnp.clip(self.spec.to_unit(theta), 0.0, 1.0)
+        z = self.unit_coordinates(theta)
         prior = 0.0
         if self.mean_model is not None:
             a = self.mean_model.evaluate(_assemble(self.spec.from_unit(z), self.mean_cols, self.mean_vals))

@@ -49,6 +49,11 @@ def _mixture_grid(df: float) -> tuple[np.ndarray, np.ndarray]:
     return u, logw - np.logaddexp.reduce(logw)
 
 
+def regional_scale(base: Float[Array, " m"], slope: Float[Array, " p"], z: Float[Array, "n p"]) -> Float[Array, "n m"]:
+    """A per-angle scale that varies log-linearly over the box: base_j · exp(slope · (z − ½)) at unit-cube points z."""
+    return jnp.asarray(base)[None, :] * jnp.exp((jnp.asarray(z) - 0.5) @ jnp.asarray(slope))[:, None]
+
+
 class EmulatorError(eqx.Module):
     """Student-t error of an emulator with a scale that varies over its box (see the module docstring).
 
@@ -75,7 +80,7 @@ class EmulatorError(eqx.Module):
 
     def scale_at(self, z: Float[Array, "n p"]) -> Float[Array, "n m"]:
         """c_j at unit-cube points z."""
-        return self.scale[None, :] * jnp.exp((z - 0.5) @ self.slope)[:, None]
+        return regional_scale(self.scale, self.slope, z)
 
     def select(self, rows) -> "EmulatorError":
         """The error model of some output angles (their rows, in that order)."""
@@ -98,13 +103,6 @@ class EmulatorError(eqx.Module):
         w = 1.0 if math.isinf(self.df) else self.df / rng.chisquare(self.df, size=shape)
         return rng.standard_normal(shape) * np.sqrt(var + c**2 * w)
 
-    def sd(self) -> np.ndarray:
-        """Standard deviation per angle at the box centre (inf for ν ≤ 2)."""
-        c = np.asarray(self.scale)
-        if math.isinf(self.df):
-            return c
-        return c * math.sqrt(self.df / (self.df - 2.0)) if self.df > 2.0 else np.full_like(c, np.inf)
-
 
 def fit_emulator_error(z: np.ndarray, errors: np.ndarray) -> EmulatorError:
     """Maximum-likelihood `EmulatorError` of out-of-sample errors.
@@ -116,7 +114,7 @@ def fit_emulator_error(z: np.ndarray, errors: np.ndarray) -> EmulatorError:
     Returns:
         `EmulatorError` with per-angle scales, a shared log-linear slope over the box, and ν in `DF_RANGE`.
     """
-    from scipy import optimize, special
+    from scipy import optimize, stats
 
     z, e = np.asarray(z, float), np.asarray(errors, float)
     if z.ndim != 2 or e.ndim != 2 or z.shape[0] != e.shape[0] or z.shape[0] < 4 or not np.all(np.isfinite(e)):
@@ -133,13 +131,11 @@ def fit_emulator_error(z: np.ndarray, errors: np.ndarray) -> EmulatorError:
     def nll(q):
         log_c, beta, df = unpack(q)
         s = np.exp(log_c[None, :] + (zc @ beta)[:, None]) + floor
-        t = e / s
-        return -np.sum(special.gammaln((df + 1) / 2) - special.gammaln(df / 2) - 0.5 * np.log(df * np.pi)
-                       - (df + 1) / 2 * np.log1p(t**2 / df) - np.log(s))
+        return -np.sum(stats.t.logpdf(e, df, scale=s))
 
     q0 = np.r_[np.log(np.median(np.abs(e), axis=0) + floor), np.zeros(p), 0.0]
     best = None
-    for start in (q0, np.r_[q0[:m + p], -4.0], np.r_[q0[:m + p], 4.0]):  # ν from near 1, ≈ 36 and near 1000
+    for start in (q0, np.r_[q0[:m + p], -4.0], np.r_[q0[:m + p], 4.0]):  # ν from ≈ 50, ≈ 2.8 and ≈ 98
         res = optimize.minimize(nll, start, method="L-BFGS-B")
         if best is None or res.fun < best.fun:
             best = res
@@ -167,7 +163,7 @@ def fit_added_spread(error: EmulatorError, z: np.ndarray, residuals: np.ndarray)
 
     @jax.jit
     def nll(q):
-        var = (jnp.exp(q[:m])[None, :] * jnp.exp((zj - 0.5) @ q[m:])[:, None]) ** 2
+        var = regional_scale(jnp.exp(q[:m]), q[m:], zj) ** 2
         return -jnp.sum(error.residual_log_density(rj, var, zj))
 
     grad = jax.jit(jax.grad(nll))

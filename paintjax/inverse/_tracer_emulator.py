@@ -208,9 +208,9 @@ def _tracer_emulator_class():
     global _CLASS
     if _CLASS is None:
         import equinox as eqx
-        import jax.numpy as jnp
 
         from ._emulator import Emulator
+        from ._error_model import regional_scale
 
         class TracerEmulator(Emulator):
             """GP emulator of the tracer; `error_sd` = sqrt(cross-validated RMS² + seed-to-seed spread²). The likelihood's
@@ -235,8 +235,7 @@ def _tracer_emulator_class():
                 if self.error is None:
                     return var
                 if self.spread_sd:
-                    z = jnp.clip(self.spec.to_unit(jnp.asarray(theta)), 0.0, 1.0)
-                    return var + (jnp.asarray(self.spread_sd)[None, :] * jnp.exp((z - 0.5) @ jnp.asarray(self.spread_slope))[:, None]) ** 2
+                    return var + regional_scale(self.spread_sd, self.spread_slope, self.unit_coordinates(theta)) ** 2
                 return var + np.asarray(self.seed_spread_sd) ** 2 if self.seed_spread_sd else var
 
             def residual_log_density(self, r, var, theta):
