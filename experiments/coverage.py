@@ -36,6 +36,7 @@ Run: python experiments/coverage.py [--datasets 20] [--steps 1500] [--walkers 16
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import time
 from pathlib import Path
@@ -173,25 +174,11 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     n = len(kept)
     rows = tasks(analyse, [forward_name] * n, [options] * n, [i for i, _ in kept], [truths[i] for i, _ in kept], [c for _, c in kept],
                  noisy, [FREE] * n, [starts] * n, [steps] * n, [walkers] * n, [seed] * n, [levels] * n)
-    hits = {lv: np.array([sum(r["inside"][f"{p}@{lv}"] for r in rows) for p in FREE]) for lv in levels}
-    grid_hits = {lv: np.array([sum(r["inside"].get(f"{p}@{lv}@grid", False) for r in rows) for p in FREE]) for lv in levels}
     for k, row in enumerate(rows, start=1):
         print(f"dataset {k}/{datasets}: χ²={row['lsq_chi2']:.3g}, starts at best {row['starts_at_best']}/{starts}, "
               f"inside@{levels[-1]:g}={[row['inside'][f'{p}@{levels[-1]}'] for p in FREE]}, n_eff={row['n_eff']:.0f}", flush=True)
     tracer_seconds = sum(c["seconds"] for _, c in kept)
-    coverage = {}
-    for lv in levels:
-        lo, hi = binom.ppf(0.025, datasets, lv), binom.ppf(0.975, datasets, lv)
-        coverage[str(lv)] = {"hits": dict(zip(FREE, hits[lv].tolist())), "datasets": datasets,
-                             "binomial_95_range": [int(lo), int(hi)],
-                             "within_range": {n: bool(lo <= h <= hi) for n, h in zip(FREE, hits[lv])}}
-        if len(FREE) == 2:
-            coverage[str(lv)]["grid_hits"] = dict(zip(FREE, grid_hits[lv].tolist()))
-    from scipy.stats import kstest
-
-    pit = {n: np.array([r["pit"][n] for r in rows]) for n in FREE}
-    calibration = {n: {"pit_ks_pvalue": float(kstest(v, "uniform").pvalue), "pit_mean": float(v.mean()),
-                       "pit_central_half": float(np.mean(np.abs(v - 0.5) <= 0.25))} for n, v in pit.items()}
+    coverage, calibration = coverage_tables(rows, FREE, levels)
     recovered = [r for r in rows if r["lsq_chi2"] < 20.0]
     if tracer:
         model_text = ("data: direct ray-tracer runs (fresh arrays, array/ray seed 1000+i, "
@@ -222,6 +209,54 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     if tracer:
         summary["emulator"] = {k: v for k, v in build_info.items() if not k.startswith("seed_spread_L")}
         summary["tracer_seconds"] = tracer_seconds
+    atomic_write_json(out / "summary.json", summary)
+    plot(summary, out / "coverage.png")
+    return summary
+
+
+def coverage_tables(rows, free, levels) -> tuple[dict, dict]:
+    """(coverage, calibration) of the datasets' rows: hits of each level's intervals per parameter against
+    the central 95 % binomial range, and the PIT's (rank histogram's) KS test against uniform."""
+    from scipy.stats import kstest
+
+    datasets = len(rows)
+    coverage = {}
+    for lv in levels:
+        hits = np.array([sum(r["inside"][f"{p}@{lv}"] for r in rows) for p in free])
+        lo, hi = binom.ppf(0.025, datasets, lv), binom.ppf(0.975, datasets, lv)
+        coverage[str(lv)] = {"hits": dict(zip(free, hits.tolist())), "datasets": datasets,
+                             "binomial_95_range": [int(lo), int(hi)],
+                             "within_range": {n: bool(lo <= h <= hi) for n, h in zip(free, hits)}}
+        if len(free) == 2:
+            coverage[str(lv)]["grid_hits"] = {p: int(sum(r["inside"].get(f"{p}@{lv}@grid", False) for r in rows)) for p in free}
+    pit = {n: np.array([r["pit"][n] for r in rows]) for n in free}
+    calibration = {n: {"pit_ks_pvalue": float(kstest(v, "uniform").pvalue), "pit_mean": float(v.mean()),
+                       "pit_central_half": float(np.mean(np.abs(v - 0.5) <= 0.25))} for n, v in pit.items()}
+    return coverage, calibration
+
+
+def combine(folders, out: Path) -> dict:
+    """Pool studies run with different `--seed`s (same forward model, free parameters, levels and chains):
+    their datasets are independent prior draws with their own noise, so their rows are pooled and the
+    coverage and rank histograms recomputed over all of them. Writes `out`/summary.json and coverage.png."""
+    global FREE
+    parts = [json.loads((Path(f) / "summary.json").read_text()) for f in folders]
+    keys = ("forward", "forward_model", "free", "walkers", "steps", "prior_box")
+    for part, folder in zip(parts[1:], folders[1:]):
+        differ = [k for k in keys if part[k] != parts[0][k]] + (["levels"] if set(part["coverage"]) != set(parts[0]["coverage"]) else [])
+        if differ:
+            raise SystemExit(f"{folder} is not the same study as {folders[0]}: {', '.join(differ)} differ")
+    seeds = [p["seed"] for p in parts]
+    if len(set(seeds)) != len(seeds):
+        raise SystemExit(f"the studies must have distinct seeds (independent prior draws), got {seeds}")
+    FREE = tuple(parts[0]["free"])
+    rows = [r for p in parts for r in p["rows"]]
+    levels = sorted(float(lv) for lv in parts[0]["coverage"])
+    coverage, calibration = coverage_tables(rows, FREE, levels)
+    summary = {k: parts[0][k] for k in keys} | {
+        "pooled_from": [{"folder": str(f), "seed": p["seed"], "datasets": p["datasets"]} for f, p in zip(folders, parts)],
+        "datasets": len(rows), "coverage": coverage, "calibration": calibration,
+        "skipped_prior_draws": [s for p in parts for s in p["skipped_prior_draws"]], "rows": rows}
     atomic_write_json(out / "summary.json", summary)
     plot(summary, out / "coverage.png")
     return summary
@@ -299,7 +334,16 @@ def main(argv=None):
                     "cluster of this many worker processes (default 0: serial, in this process)")
     ap.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786) to run the tasks on")
     ap.add_argument("--out", help=f"output folder (default {OUT} or {OUT_TRACER})")
+    ap.add_argument("--combine", nargs="+", metavar="FOLDER", help="pool the summaries of studies run with different --seed "
+                    "(same model, parameters and chains) into --out, recomputing coverage and rank histograms; runs nothing else")
     a = ap.parse_args(argv)
+    if a.combine:
+        if not a.out:
+            raise SystemExit("--combine needs --out (the pooled study's folder)")
+        s = combine(a.combine, Path(a.out))
+        for lv, c in s["coverage"].items():
+            print(f"pooled coverage {float(lv):.0%}: {c['hits']} of {c['datasets']} (binomial 95 % range {c['binomial_95_range']})")
+        return s
     if a.quick or os.environ.get("PAINTJAX_QUICK", "") not in ("", "0"):
         a.datasets, a.steps, a.walkers = 2, 100, 8
     tracer = a.forward in TRACER_FORWARDS

@@ -239,3 +239,15 @@ def test_width_shift_moves_the_centroid_and_keeps_the_mass():
         assert np.all(np.asarray(moved) >= 0)
         if float(move).is_integer():
             np.testing.assert_allclose(np.asarray(moved), np.roll(np.asarray(mass), int(move), -1), atol=1e-12)
+
+
+def test_hemisphere_directions_integrate_the_cosine_moments():
+    """∫ cosθ dω = π and ∫ cos²θ dω = 2π/3 over the hemisphere; the directions are unit vectors above the plane."""
+    from paintjax.brdf import hemisphere_directions
+
+    wo, wt = hemisphere_directions(64, 32)
+    assert wo.shape == (64 * 32, 3) and wt.shape == (64 * 32,)
+    np.testing.assert_allclose(np.linalg.norm(np.asarray(wo), axis=-1), 1.0, atol=1e-12)
+    assert np.all(np.asarray(wo)[:, 2] > 0)
+    np.testing.assert_allclose(np.sum(wt), np.pi, rtol=1e-12)
+    np.testing.assert_allclose(np.sum(wt * np.asarray(wo)[:, 2]), 2.0 * np.pi / 3.0, rtol=1e-12)

@@ -28,6 +28,7 @@ from paintjax import (
     synthesize_profiles,
     table_from_lobes,
 )
+from paintjax.brdf import hemisphere_directions as hemisphere
 from paintjax.brdf._in_plane import _fresnel_np
 from paintjax.optics._aluminium import aluminium_index
 from paintjax.wave._coherent import expected_control_amplitude, expected_control_power
@@ -49,16 +50,6 @@ def call(brdf, name, *args):
 def direction(theta_deg, phi_deg=0.0):
     t, p = np.deg2rad(theta_deg), np.deg2rad(phi_deg)
     return np.stack(np.broadcast_arrays(np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)), -1)
-
-
-def hemisphere(n_theta=200, n_phi=400):
-    """(ω_o (Q, 3), weights of ∫ · cosθ_o dω_o), Gauss–Legendre in θ, uniform in φ."""
-    x, w = np.polynomial.legendre.leggauss(n_theta)
-    th = 0.25 * np.pi * (x + 1.0)
-    ph = (np.arange(n_phi) + 0.5) * 2.0 * np.pi / n_phi
-    wo = np.stack(np.broadcast_arrays(np.sin(th)[:, None] * np.cos(ph), np.sin(th)[:, None] * np.sin(ph), np.cos(th)[:, None]), -1)
-    wt = (0.25 * np.pi * w * np.cos(th) * np.sin(th))[:, None] * (2.0 * np.pi / n_phi) * np.ones_like(ph)
-    return jnp.asarray(wo.reshape(-1, 3)), wt.ravel()
 
 
 @functools.lru_cache(maxsize=None)

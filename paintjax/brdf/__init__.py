@@ -6,7 +6,7 @@ the analytic Kirchhoff/Beckmann and He–Torrance BRDFs, and the wave-based `Tab
 from the lobes (cached on disk), on its own or interpolated over a (σ, τ) grid.
 """
 
-from ._analytic import AbstractGaussianMetalBRDF, AbstractLobeBRDF, BeckmannBRDF, coherent_lobe_width
+from ._analytic import AbstractGaussianMetalBRDF, AbstractLobeBRDF, BeckmannBRDF, coherent_lobe_width, hemisphere_directions
 from ._grid import BRDFTableGrid, platelet_brdf_grid
 from ._he_torrance import HeTorranceBRDF
 from ._in_plane import DEFAULT_INCIDENCE_DEG, DEFAULT_NUM_PROFILES, InPlaneLobes, kirchhoff_lobes, leontovich_reflectance
@@ -18,6 +18,7 @@ __all__ = [
     "AbstractLobeBRDF",
     "BeckmannBRDF",
     "coherent_lobe_width",
+    "hemisphere_directions",
     "BRDFTableGrid",
     "platelet_brdf_grid",
     "HeTorranceBRDF",

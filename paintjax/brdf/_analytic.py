@@ -91,6 +91,20 @@ def flip_to_upper(w):
     return w * jnp.stack([jnp.ones_like(sign), jnp.ones_like(sign), sign], -1), sign
 
 
+def hemisphere_directions(n_theta: int = 200, n_phi: int = 400):
+    """Directions and weights of ∫ g(ω) cosθ dω over the upper hemisphere: Gauss–Legendre in θ, midpoints in φ.
+
+    Returns:
+        (ω (n_theta · n_phi, 3) as a JAX array, weights (n_theta · n_phi,) as NumPy).
+    """
+    x, w = np.polynomial.legendre.leggauss(int(n_theta))
+    th = 0.25 * np.pi * (x + 1.0)
+    ph = (np.arange(n_phi) + 0.5) * 2.0 * np.pi / n_phi
+    wo = np.stack(np.broadcast_arrays(np.sin(th)[:, None] * np.cos(ph), np.sin(th)[:, None] * np.sin(ph), np.cos(th)[:, None]), -1)
+    wt = (0.25 * np.pi * w * np.cos(th) * np.sin(th))[:, None] * (2.0 * np.pi / n_phi) * np.ones_like(ph)
+    return jnp.asarray(wo.reshape(-1, 3)), wt.ravel()
+
+
 def disk_quadrature(cos_i: Float[Array, "..."], n_phi: int = 64, n_gl: int = 12, xp=jnp):
     """Quadrature over the unit β-disk in polar coordinates around the specular point of ω_i.
 
