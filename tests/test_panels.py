@@ -187,3 +187,40 @@ def test_coverage_replicates_run_as_dask_tasks_with_the_serial_numbers(tmp_path)
         np.testing.assert_allclose([a["lsq"][n] for n in a["lsq"]], [b["lsq"][n] for n in b["lsq"]], rtol=1e-6)
         np.testing.assert_allclose(list(a["pit"].values()), list(b["pit"].values()), atol=1e-9)
     assert serial["coverage"] == spread["coverage"]
+
+
+def test_coverage_studies_of_different_seeds_pool_into_one(tmp_path):
+    """`experiments/coverage.py --combine`: the rows of studies with different seeds are pooled and the coverage
+    and rank-histogram tests recomputed over all of them; studies of another model or the same seed are refused."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location("coverage_study", Path(__file__).parents[1] / "experiments" / "coverage.py")
+    study = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(study)
+    rng = np.random.default_rng(0)
+
+    def write(name, seed, n, **over):
+        rows = [{"truth": {"shape": 2.0}, "pit": {"shape": float(rng.uniform())},
+                 "inside": {"shape@0.68": bool(k % 3), "shape@0.95": bool(k % 10)}} for k in range(n)]
+        summary = {"forward": "tracer-emulator-wide", "forward_model": "m", "free": ["shape"], "walkers": 16, "steps": 2000,
+                   "prior_box": {"shape": [1.2, 12.0]}, "seed": seed, "datasets": n, "rows": rows, "skipped_prior_draws": [],
+                   "coverage": {"0.68": {}, "0.95": {}}} | over
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.json").write_text(json.dumps(summary))
+        return rows
+
+    a, b = write("a", 1, 30), write("b", 2, 20)
+    pooled = study.combine([tmp_path / "a", tmp_path / "b"], tmp_path / "pooled")
+    assert pooled["datasets"] == 50 and [p["seed"] for p in pooled["pooled_from"]] == [1, 2]
+    for lv in ("0.68", "0.95"):
+        assert pooled["coverage"][lv]["hits"]["shape"] == sum(r["inside"][f"shape@{lv}"] for r in a + b)
+    assert json.loads((tmp_path / "pooled" / "summary.json").read_text())["coverage"] == pooled["coverage"]
+    assert (tmp_path / "pooled" / "coverage.png").stat().st_size > 0
+    write("same_seed", 1, 5)
+    with pytest.raises(SystemExit, match="distinct seeds"):
+        study.combine([tmp_path / "a", tmp_path / "same_seed"], tmp_path / "x")
+    write("other_model", 3, 5, steps=1000)
+    with pytest.raises(SystemExit, match="steps differ"):
+        study.combine([tmp_path / "a", tmp_path / "other_model"], tmp_path / "x")
