@@ -251,3 +251,5 @@ def test_hemisphere_directions_integrate_the_cosine_moments():
     assert np.all(np.asarray(wo)[:, 2] > 0)
     np.testing.assert_allclose(np.sum(wt), np.pi, rtol=1e-12)
     np.testing.assert_allclose(np.sum(wt * np.asarray(wo)[:, 2]), 2.0 * np.pi / 3.0, rtol=1e-12)
+    with pytest.raises(ValueError, match="n_theta and n_phi must be positive integers"):
+        hemisphere_directions(0, 32)

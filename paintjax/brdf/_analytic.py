@@ -97,6 +97,8 @@ def hemisphere_directions(n_theta: int = 200, n_phi: int = 400):
     Returns:
         (ω (n_theta · n_phi, 3) as a JAX array, weights (n_theta · n_phi,) as NumPy).
     """
+    if int(n_theta) != n_theta or int(n_phi) != n_phi or n_theta < 1 or n_phi < 1:
+        raise ValueError(f"n_theta and n_phi must be positive integers, got {n_theta!r}, {n_phi!r}")
     x, w = np.polynomial.legendre.leggauss(int(n_theta))
     th = 0.25 * np.pi * (x + 1.0)
     ph = (np.arange(n_phi) + 0.5) * 2.0 * np.pi / n_phi
