@@ -178,12 +178,30 @@ def test_3d_construction_over_the_full_hemisphere(theta_i, tau):
     at 0–80° for σ 0.051 µm and τ around the measured 0.64 µm (measured ≤ 2.4 %). Towards grazing the
     lobe becomes the narrowest Kirchhoff term, of width 2/(kτ); tables that could not represent that
     width between two basis widths were 4–10 % off at 70–80°, by an amount that jumped with τ."""
+    l1 = construction_l1(theta_i, tau)
+    assert l1 <= 0.03, l1
+
+
+def construction_l1(theta_i, tau):
+    """Scattered-power-weighted L1 of the table built from 1-D Kirchhoff lobes against the analytic 3-D Kirchhoff BRDF."""
     table, analytic = kirchhoff_pair(tau)
     wo, wt = hemisphere()
     wi = jnp.asarray(direction(theta_i))
     f, ref = np.asarray(call(table, "incoherent", wi, wo)), np.asarray(call(analytic, "incoherent", wi, wo))
-    l1 = np.sum(np.abs(f - ref) * wt) / np.sum(ref * wt)
-    assert l1 <= 0.03, l1
+    return np.sum(np.abs(f - ref) * wt) / np.sum(ref * wt)
+
+
+_LONG_TAU_OPEN = pytest.mark.xfail(strict=True, reason="open: at τ ≥ 1 µm the construction departs from 3-D Kirchhoff at 60–80°")
+
+
+@pytest.mark.parametrize("tau", [1.2, 1.8])
+@pytest.mark.parametrize("theta_i", [0.0, 20.0, 40.0, *(pytest.param(t, marks=_LONG_TAU_OPEN) for t in (60.0, 70.0, 80.0))])
+def test_3d_construction_at_long_correlation_lengths(theta_i, tau):
+    """The same check at correlation lengths the wide inverse box reaches (τ up to 2 µm; σ 0.051 µm,
+    slopes 2σ/τ 0.06–0.09, where Kirchhoff holds). Within 3 % at 0–40° (measured ≤ 0.4 %); at 60–80° it
+    is not (measured 5.4 / 8.2 / 9.1 % at τ 1.2 µm, 12.7 / 16.3 / 19.1 % at τ 1.8 µm, growing with τ from
+    about 1 µm): those cells are expected failures."""
+    assert construction_l1(theta_i, tau) <= 0.03
 
 
 BOX = [(0.01, 0.2), (0.01, 2.0), (0.3, 0.2), (0.3, 2.0), (0.051, 0.64)]
