@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from paintjax import BeckmannBRDF, HeTorranceBRDF, MirrorBRDF, TabulatedBRDF
+from paintjax.brdf import hemisphere_directions
 from paintjax.brdf._he_torrance import effective_roughness, shadowing
 from paintjax.brdf._in_plane import kirchhoff_lobes
 from paintjax.brdf._table import table_from_lobes
@@ -51,14 +52,10 @@ def call(brdf, name, *args):
 
 def hemisphere_integral(brdf, theta_i_deg, n=120):
     """∫ f_inc cosθ_o dω_o on a (θ_o, φ_o) Gauss–Legendre × uniform grid (independent of the BRDF)."""
-    x, w = np.polynomial.legendre.leggauss(n)
-    th = 0.25 * np.pi * (x + 1.0)
-    wth = 0.25 * np.pi * w
-    ph = (np.arange(2 * n) + 0.5) * np.pi / n
-    wo = direction(np.rad2deg(th)[:, None], np.rad2deg(ph)[None, :])
+    wo, wt = hemisphere_directions(n, 2 * n)
     wi = direction(theta_i_deg, 17.0)  # an arbitrary azimuth: the BRDFs are isotropic
-    f = call(brdf, "incoherent", jnp.asarray(wi), jnp.asarray(wo))
-    return float(np.sum(np.asarray(f) * np.cos(th)[:, None] * np.sin(th)[:, None] * wth[:, None]) * np.pi / n)
+    f = call(brdf, "incoherent", jnp.asarray(wi), wo)
+    return float(np.sum(np.asarray(f) * wt))
 
 
 @pytest.mark.parametrize("name", ["beckmann", "beckmann_delta", "he_torrance", "he_torrance_rough_air", "table"])
