@@ -22,6 +22,8 @@ _MIN_WIDTH, _MAX_WIDTH = 0.012, 2.5
 COS_MIN = 0.1
 #: Relative-error fits: passes with weights from the fitted model after the first (data-weighted) one.
 REWEIGHT_PASSES = 2
+#: Ridge of the lobe fits, relative to each basis function's own (weighted) norm.
+RIDGE = 1e-6
 
 
 def _lobe_widths(num_widths: int = DEFAULT_NUM_WIDTHS) -> np.ndarray:
@@ -42,7 +44,10 @@ def fit_radial_lobe(u, p, weights, widths, method: str = "abel", min_width: floa
 
     Model: p(u) ≈ Σ_k C_k B_k(u) with B_k = √π w_k e^{−u²/w_k²} (abel: the projection of
     L(ρ) = Σ C_k e^{−ρ²/w_k²}) or e^{−u²/w_k²} (rotate: the in-plane cut of L). Non-negative least
-    squares with a tiny ridge; basis widths below `min_width` are not used.
+    squares with a tiny ridge on each coefficient, relative to its basis function's weighted norm (a
+    ridge relative to the largest column, as tables before version 11 had, is 10⁶ times stronger on
+    the narrow widths, whose columns are small: it kept lobes of τ ≳ 1 µm from their narrowest
+    width and made them up to 30 % too low at the peak); basis widths below `min_width` are not used.
 
     Row weights: `weights` as given when `floor` is None. With `floor` (scalar or per row) the fit is
     in relative error down to the floor: row weights `weights / (ref + floor)`, ref = max(p, 0) in the
@@ -61,8 +66,8 @@ def fit_radial_lobe(u, p, weights, widths, method: str = "abel", min_width: floa
     for _ in range(1 + (0 if floor is None else int(reweight))):
         w = weights if floor is None else weights / (ref + floor)
         Aw = A * w[:, None]
-        ridge = 1e-6 * np.linalg.norm(Aw, axis=0).max()
-        c, _ = nnls(np.vstack([Aw, ridge * np.eye(len(widths))]), np.concatenate([p * w, np.zeros(len(widths))]), maxiter=50 * len(widths))
+        ridge = np.diag(RIDGE * np.linalg.norm(Aw, axis=0))
+        c, _ = nnls(np.vstack([Aw, ridge]), np.concatenate([p * w, np.zeros(len(widths))]), maxiter=50 * len(widths))
         ref = A @ c
     resid = float(np.sqrt(np.mean(((A @ c - p) * w) ** 2)) / max(np.sqrt(np.mean((p * w) ** 2)), 1e-300))
     return c, resid
@@ -114,8 +119,8 @@ def in_plane_reach(c, cos_min: float = COS_MIN) -> np.ndarray:
 
 
 def _hankel_pair(widths, rho_max: float = 2.2, n_panels: int = 80, n_gl: int = 16):
-    """(r nodes, ρ grid, quadrature kernel K) with L(ρ) = K @ g(r) = ∫ g(r) J0(2πρr) 2πr dr; the basis
-    e^{−ρ²/w²} has g(r) = πw² e^{−π²w²r²}."""
+    """(r nodes, their 1-D quadrature weights, ρ grid, quadrature kernel K) with L(ρ) = K @ g(r) =
+    ∫ g(r) J0(2πρr) 2πr dr; the basis e^{−ρ²/w²} has g(r) = πw² e^{−π²w²r²}."""
     from scipy.special import j0
 
     r_max = 5.0 / (np.pi * widths.min())
@@ -123,9 +128,9 @@ def _hankel_pair(widths, rho_max: float = 2.2, n_panels: int = 80, n_gl: int = 1
     edges = np.linspace(0.0, r_max, n_panels + 1)
     half = 0.5 * np.diff(edges)[:, None]
     r = ((edges[:-1, None] + half) + half * x).ravel()
-    wr = (half * w).ravel() * 2.0 * np.pi * r
+    w_line = (half * w).ravel()
     rho = np.linspace(0.0, rho_max, 441)
-    return r, rho, j0(2.0 * np.pi * rho[:, None] * r[None, :]) * wr
+    return r, w_line, rho, j0(2.0 * np.pi * rho[:, None] * r[None, :]) * (w_line * 2.0 * np.pi * r)
 
 
 def continue_lobe(coef_ref, widths, X_ref: float, X_new: float, kernel, min_width: float = 0.0):
@@ -136,30 +141,64 @@ def continue_lobe(coef_ref, widths, X_ref: float, X_new: float, kernel, min_widt
     A = g(0)/(1 − e^{−X_ref}) and γ(r) = ln(1 + e^{X_ref} g/A)/X_ref, evaluate g at X_new, transform
     back and fit the Gaussian basis (relative weights down to 1 % of the peak, non-negative).
     """
-    r, rho, K = kernel
-    g_ref = np.sum(coef_ref * np.pi * widths**2 * np.exp(-(np.pi**2) * widths**2 * r[:, None] ** 2), -1)
-    A = g_ref[0] / -np.expm1(-X_ref)
-    if not A > 0:
+    rho = kernel[2]
+    L = kernel[3] @ _continued_transforms(coef_ref, widths, X_ref, X_new, kernel)[:, 0]
+    if not np.any(L != 0):
         return np.zeros_like(coef_ref)
-    gamma = np.log1p(np.maximum(g_ref, 0.0) * np.exp(X_ref) / A) / X_ref
-    L = K @ (A * np.exp(-X_new) * np.expm1(X_new * gamma))
     c, _ = fit_radial_lobe(rho, L, np.ones_like(L), widths, "rotate", min_width, floor=0.01 * max(L.max(), 1e-300))
     return c
 
 
-def _roughness(mu, R_coh, R_inc, integrals):
-    """(kσ)² of the surface from the tabulated incidences given (cosines μ, coherent and incoherent
-    reflectance, lobe integrals ∫L d²ρ): from the coherent fraction R_coh/R = e^{−(2kσμ)²} (least
-    squares in its logarithm over incidences where it lies in [1e-4, 0.9]); without a usable coherent
-    part, from the q_z dependence of the lobe integrals A(1 − e^{−(kσ)²(2μ)²}) (best of a fine grid)."""
-    frac = R_coh / np.maximum(R_coh + R_inc, 1e-300)
+def _continued_transforms(coef_ref, widths, X_ref, X_new, kernel):
+    """The 2-D Fourier transform g(r) of the lobe continued from X_ref to each X_new (`continue_lobe`),
+    on the kernel's r nodes. Shape (r, len(X_new)); zeros when the reference lobe is empty."""
+    r = kernel[0]
+    X_new = np.atleast_1d(np.asarray(X_new, float))[None, :]
+    g_ref = np.sum(coef_ref * np.pi * widths**2 * np.exp(-(np.pi**2) * widths**2 * r[:, None] ** 2), -1)
+    A = g_ref[0] / -np.expm1(-X_ref)
+    if not A > 0:
+        return np.zeros((r.size, X_new.size))
+    gamma = 1.0 + np.log(np.exp(-X_ref) + np.maximum(g_ref, 0.0) / A) / X_ref  # ln(1 + e^X g/A)/X without overflow
+    return A * (np.exp(-X_new * (1.0 - gamma[:, None])) - np.exp(-X_new))
+
+
+def _roughness(mu, R_coh, R_inc, coef, widths, ref: int, kernel, reach):
+    """(kσ)² of the surface, for continuing the lobe of node `ref` in q_z, from the tabulated incidences:
+    cosines μ (J,), coherent and incoherent reflectance (J,), lobe coefficients `coef` (J, K) fitted
+    from the in-plane data, and each node's in-plane reach in u (`in_plane_reach`).
+
+    From the coherent fraction R_coh/R = e^{−(2kσμ)²} (least squares in its logarithm over the nodes up
+    to `ref` where it lies in [1e-4, 0.9]). Without a usable coherent part (kσ ≳ 1.5), from the q_z
+    dependence of the lobe itself: the (kσ)² on a fine grid for which the lobe of node `ref`, continued
+    to every other node's q_z (the transfer function of `continue_lobe`), best matches in projection
+    the lobe fitted there — the in-plane data — over the u that node's data reach (peak-normalised L1),
+    including the nodes beyond `ref` whose data see only the lobe's middle: there the lobe narrows as
+    c = 2μ̄ falls once (kσc)² ≫ 1 (width ∝ c) and stops narrowing when (kσc)² ≲ 1, which is what fixes
+    (kσ)². Tables before version 11 fitted the lobe *integrals* A(1 − e^{−(kσ)²(2μ)²}), which are flat
+    once (kσc)² ≫ 1, and settled near (kσ)² = 4 for any rougher surface (8 for σ 0.15 µm, 32 for σ 0.3 µm
+    in the binder), so continued lobes were up to 2× too low at the peak near grazing.
+    """
+    frac = R_coh[: ref + 1] / np.maximum(R_coh[: ref + 1] + R_inc[: ref + 1], 1e-300)
     use = (frac >= 1e-4) & (frac <= 0.9)
     if np.any(use):
-        return float(np.sum(mu[use] ** 2 * -np.log(frac[use])) / (4.0 * np.sum(mu[use] ** 4)))
-    grid = np.geomspace(1e-3, 30.0, 1201)
-    shape = -np.expm1(-grid[:, None] * (2.0 * mu[None, :]) ** 2)
-    A = shape @ integrals / np.sum(shape**2, -1)
-    return float(grid[np.argmin(np.sum((A[:, None] * shape - integrals) ** 2, -1))])
+        m = np.asarray(mu, float)[: ref + 1][use]
+        return float(np.sum(m**2 * -np.log(frac[use])) / (4.0 * np.sum(m**4)))
+    r, w_line = kernel[0], kernel[1]
+    c = 2.0 * np.asarray(mu, float)
+    others = np.nonzero((np.arange(c.size) != ref) & (reach > 0) & np.any(coef > 0, -1))[0]
+    t = np.linspace(0.0, 1.0, 101)
+    u = np.minimum(reach[others], 2.2)[:, None] * t  # (N, U)
+    fitted = np.sum(coef[others][:, None, :] * np.sqrt(np.pi) * widths * np.exp(-(u[..., None] ** 2) / widths**2), -1)
+    fitted = fitted / np.maximum(fitted[:, :1], 1e-300)
+    cosines = 2.0 * np.cos(2.0 * np.pi * u[..., None] * r) * w_line  # (N, U, r): P(u) = 2∫ g(r) cos(2πur) dr
+    grid = np.geomspace(1e-2, 300.0, 161)
+    cost = []
+    for g in grid:
+        G = _continued_transforms(coef[ref], widths, g * c[ref] ** 2, g * c[others] ** 2, kernel)  # (r, N)
+        P = np.einsum("nur,rn->nu", cosines, G)
+        P = P / np.maximum(P[:, :1], 1e-300)
+        cost.append(np.sum(np.mean(np.abs(P - fitted), -1)))
+    return float(grid[int(np.argmin(cost))])
 
 
 def _interp_index(mu, mu_nodes_desc, xp=jnp):

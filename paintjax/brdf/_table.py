@@ -136,7 +136,7 @@ from ._lobe_basis import (
 )
 
 #: Bumped when the table construction changes (part of the cache key).
-TABLE_VERSION = 10  # 10: the basis width just below 2/(kτ) is usable (lobe width continuous in τ at grazing)
+TABLE_VERSION = 11  # 11: the lobe fits' ridge is relative to each basis function (narrow widths no longer suppressed)
 
 
 def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = DEFAULT_NUM_WIDTHS, min_width: float = 0.0, sinkhorn_iterations: int = 300) -> dict:
@@ -207,9 +207,8 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
         last += 1
     continued = np.zeros(J, bool)
     if coverage[last] >= MIN_COVERAGE and last < J - 1 and c_nodes[0] - c_nodes[last] >= MIN_C_SPAN:
-        n = last + 1
-        kroughness2 = _roughness(mu_nodes[:n], R_coh[:n], R_inc[:n], mass[:n].sum(-1))
         kernel = _hankel_pair(widths)
+        kroughness2 = _roughness(mu_nodes, R_coh, R_inc, coef, widths, last, kernel, in_plane_reach(c_nodes))
         for j in range(last + 1, J):
             coef[j] = continue_lobe(coef[last], widths, kroughness2 * c_nodes[last] ** 2, kroughness2 * c_nodes[j] ** 2, kernel, min_width)
         continued[last + 1:] = True
