@@ -142,7 +142,8 @@ class BRDFTableGrid(eqx.Module):
             coh, interpolate(lob["reflectance"]), interpolate(lob["absorbed"]), None, interpolate(lob["reflectance_se"]),
             interpolate(lob["coherent_reflectance_se"])))
         k = 2.0 * np.pi * self.n_medium / self.wavelength_um
-        arrays = _table_arrays_from_lobes(lobes, method=self.method, num_widths=int(self.widths.shape[0]), min_width=2.0 / (k * q[1]))
+        arrays = _table_arrays_from_lobes(lobes, method=self.method, num_widths=int(self.widths.shape[0]), min_width=2.0 / (k * q[1]),
+                                          kroughness2=float((k * q[0]) ** 2))
         arrays["lobe_relative_se"] = interpolate(lob["lobe_relative_se"])
         return TabulatedBRDF.from_arrays(arrays, coherent=self.coherent, coherent_width=self.coherent_width, n_medium=self.n_medium)
 

@@ -138,11 +138,13 @@ from ._lobe_basis import (
 )
 
 #: Bumped when the table construction changes (part of the cache key).
-TABLE_VERSION = 11  # 11: the lobe fits' ridge is relative to each basis function (narrow widths no longer suppressed)
+TABLE_VERSION = 12  # 11: the lobe fits' ridge is relative to each basis function; 12: the q_z continuation uses the known (kσ)²
 
 
-def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = DEFAULT_NUM_WIDTHS, min_width: float = 0.0, sinkhorn_iterations: int = 300) -> dict:
-    """Build the table arrays (numpy) from in-plane lobes (basis widths ≥ `min_width`, β units)."""
+def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = DEFAULT_NUM_WIDTHS, min_width: float = 0.0, sinkhorn_iterations: int = 300,
+                             kroughness2: float | None = None) -> dict:
+    """Build the table arrays (numpy) from in-plane lobes (basis widths ≥ `min_width`, β units; `kroughness2` the
+    surface's (kσ)² in the medium when known, else estimated from the lobes for the q_z continuation)."""
     if method not in ("abel", "rotate"):
         raise ValueError(f"method must be 'abel' or 'rotate', got {method!r}")
     inc = np.asarray(lobes.incidence_deg, float)
@@ -210,7 +212,8 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
     continued = np.zeros(J, bool)
     if coverage[last] >= MIN_COVERAGE and last < J - 1 and c_nodes[0] - c_nodes[last] >= MIN_C_SPAN:
         kernel = _hankel_pair(widths)
-        kroughness2 = _roughness(mu_nodes, R_coh, R_inc, coef, widths, last, kernel, in_plane_reach(c_nodes))
+        if kroughness2 is None:
+            kroughness2 = _roughness(mu_nodes, R_coh, R_inc, coef, widths, last, kernel, in_plane_reach(c_nodes))
         for j in range(last + 1, J):
             coef[j] = continue_lobe(coef[last], widths, kroughness2 * c_nodes[last] ** 2, kroughness2 * c_nodes[j] ** 2, kernel, min_width)
         continued[last + 1:] = True
@@ -243,6 +246,11 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
         "lobe_sigma": sigma,
         "lobe_sigma_coherent": sig_coh,
     }
+
+
+def _kroughness2(sigma_um: float, wavelength_um: float, n_medium: float) -> float:
+    """(kσ)² of a surface of rms height σ in a medium of index n, k = 2πn/λ0: the roughness of the q_z continuation."""
+    return float((2.0 * np.pi * n_medium / wavelength_um * sigma_um) ** 2)
 
 
 def _lobe_relative_se(incoherent, sem) -> np.ndarray:
@@ -359,6 +367,7 @@ def table_from_lobes(
     coherent_width: float | None = None,
     num_widths: int = DEFAULT_NUM_WIDTHS,
     min_width: float = 0.0,
+    sigma_um: float | None = None,
 ) -> TabulatedBRDF:
     """Tabulated BRDF from any in-plane lobe source (fields of `WaveLobes`), uncached.
 
@@ -372,9 +381,14 @@ def table_from_lobes(
         min_width: narrowest basis width used (β units); `platelet_table_arrays` uses 2/(kτ),
             the narrowest term of a Gaussian surface's diffuse lobe, so profile-average speckle
             is not fitted as structure.
+        sigma_um: rms height of the surface [µm] when known: the q_z continuation towards grazing then uses
+            (kσ)², k = 2π n_medium / wavelength_um; None (default) estimates (kσ)² from the lobes.
     """
     check_coherent(coherent)
-    arrays = _table_arrays_from_lobes(lobes, method=method, num_widths=num_widths, min_width=min_width)
+    if sigma_um is not None:
+        check_positive("sigma_um", sigma_um, MAX_SIGMA_UM)
+    arrays = _table_arrays_from_lobes(lobes, method=method, num_widths=num_widths, min_width=min_width,
+                                      kroughness2=None if sigma_um is None else _kroughness2(sigma_um, wavelength_um, n_medium))
     if coherent_width is None:
         coherent_width = coherent_lobe_width(wavelength_um, n_medium, platelet_width_um)
     return TabulatedBRDF.from_arrays(arrays, coherent=coherent, coherent_width=coherent_width, n_medium=n_medium)
@@ -459,7 +473,8 @@ def platelet_table_arrays(
             lobes = lobes[0]
         else:
             lobes = kirchhoff_lobes(sigma_um, tau_um, incidence_deg=inc, theta_s_deg=ts, wavelength_um=wavelength_um, n_medium=n_medium, metal_index=metal)
-        out = _table_arrays_from_lobes(lobes, method=method, num_widths=num_widths, min_width=min_width)
+        out = _table_arrays_from_lobes(lobes, method=method, num_widths=num_widths, min_width=min_width,
+                                       kroughness2=_kroughness2(sigma_um, wavelength_um, n_medium))
         out["wave_solved"] = solved
         return out
 
