@@ -50,10 +50,12 @@ data reach less than `MIN_COVERAGE` = 99 % of their projected lobe, below the la
 (c_ref), take that node's lobe continued to their q_z with the generalised Harvey–Shack transfer
 function (`continue_lobe`): the 2-D Fourier transform of L is g(r) = A e^{−X}(e^{Xγ(r)} − 1),
 X = (kσc)², so γ(r) follows from the reference lobe and L at any c from γ. (kσ)² is estimated
-from the source's coherent fraction R_coh/R = e^{−(2kσμ)²} over the covered incidences; without a
-usable coherent part, as the value for which the continued lobe best matches every node's in-plane
-data where they reach (`_roughness`; tables before version 11 used the lobe integrals, which do not
-see (kσ)² once (kσc)² ≫ 1). Which nodes were
+from the surface's σ when the table is built for a surface (`platelet_table_arrays`, the grid's
+`build_at`, `table_from_lobes(..., sigma_um=σ)`; version 12). For lobes of an unknown surface it is
+estimated: from the source's coherent fraction R_coh/R = e^{−(2kσμ)²} over the covered incidences,
+or without a usable coherent part as the value for which the continued lobe best matches every
+node's in-plane data where they reach (`_roughness`; tables before version 11 used the lobe
+integrals, which do not see (kσ)² once (kσc)² ≫ 1). Which nodes were
 continued is stored (`continued`, with `lobe_coverage`).
 
 **Reflectance.** a(μ) is solved at build time (symmetric Sinkhorn iteration) so that at every
