@@ -158,7 +158,7 @@ def _continued_transforms(coef_ref, widths, X_ref, X_new, kernel):
     A = g_ref[0] / -np.expm1(-X_ref)
     if not A > 0:
         return np.zeros((r.size, X_new.size))
-    gamma = 1.0 + np.log(np.exp(-X_ref) + np.maximum(g_ref, 0.0) / A) / X_ref  # ln(1 + e^X g/A)/X without overflow
+    gamma = 1.0 + np.log(np.maximum(np.exp(-X_ref) + np.maximum(g_ref, 0.0) / A, 1e-300)) / X_ref  # ln(1 + e^X g/A)/X without overflow
     return A * (np.exp(-X_new * (1.0 - gamma[:, None])) - np.exp(-X_new))
 
 
@@ -177,6 +177,9 @@ def _roughness(mu, R_coh, R_inc, coef, widths, ref: int, kernel, reach):
     (kσ)². Tables before version 11 fitted the lobe *integrals* A(1 − e^{−(kσ)²(2μ)²}), which are flat
     once (kσc)² ≫ 1, and settled near (kσ)² = 4 for any rougher surface (8 for σ 0.15 µm, 32 for σ 0.3 µm
     in the binder), so continued lobes were up to 2× too low at the peak near grazing.
+
+    Only for lobes of an unknown surface: tables built for a surface use its (kσ)² (`_kroughness2`),
+    since where the data barely constrain it (kσ ≳ 4) this estimate is not smooth in σ and τ.
     """
     frac = R_coh[: ref + 1] / np.maximum(R_coh[: ref + 1] + R_inc[: ref + 1], 1e-300)
     use = (frac >= 1e-4) & (frac <= 0.9)
