@@ -22,7 +22,7 @@ from jaxtyping import Array, Float
 from ._analytic import DEFAULT_PLATELET_WIDTH_UM, check_coherent, coherent_lobe_width
 from ._in_plane import InPlaneLobes, coherent_positive_part
 from ._lobe_basis import normalisation_tensor, symmetric_scale
-from ._table import TabulatedBRDF, _table_arrays_from_lobes, platelet_table_arrays
+from ._table import TabulatedBRDF, _kroughness2, _table_arrays_from_lobes, platelet_table_arrays
 
 # ---------------------------------------------------------------------------------------- grid
 #: Sinkhorn iterations of the scale re-solved at an interpolated (σ, τ) (started from the interpolated
@@ -143,7 +143,7 @@ class BRDFTableGrid(eqx.Module):
             interpolate(lob["coherent_reflectance_se"])))
         k = 2.0 * np.pi * self.n_medium / self.wavelength_um
         arrays = _table_arrays_from_lobes(lobes, method=self.method, num_widths=int(self.widths.shape[0]), min_width=2.0 / (k * q[1]),
-                                          kroughness2=float((k * q[0]) ** 2))
+                                          kroughness2=_kroughness2(q[0], self.wavelength_um, self.n_medium))
         arrays["lobe_relative_se"] = interpolate(lob["lobe_relative_se"])
         return TabulatedBRDF.from_arrays(arrays, coherent=self.coherent, coherent_width=self.coherent_width, n_medium=self.n_medium)
 

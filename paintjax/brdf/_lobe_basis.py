@@ -8,6 +8,8 @@ the in-plane reach it is continued in roughness (`continue_lobe`); `normalisatio
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -118,9 +120,18 @@ def in_plane_reach(c, cos_min: float = COS_MIN) -> np.ndarray:
     return np.where(c > 2 * cos_min, np.abs(np.sqrt(1 - mu_a**2) - np.sqrt(1 - mu_b**2)), 0.0)
 
 
-def _hankel_pair(widths, rho_max: float = 2.2, n_panels: int = 80, n_gl: int = 16):
-    """(r nodes, their 1-D quadrature weights, ρ grid, quadrature kernel K) with L(ρ) = K @ g(r) =
-    ∫ g(r) J0(2πρr) 2πr dr; the basis e^{−ρ²/w²} has g(r) = πw² e^{−π²w²r²}."""
+class HankelKernel(NamedTuple):
+    """Quadrature of the radial lobe's 2-D Fourier pair: r nodes with their 1-D weights `w_line`, the ρ
+    grid, and K with L(ρ) = K @ g(r) = ∫ g(r) J0(2πρr) 2πr dr."""
+
+    r: np.ndarray
+    w_line: np.ndarray
+    rho: np.ndarray
+    K: np.ndarray
+
+
+def _hankel_pair(widths, rho_max: float = 2.2, n_panels: int = 80, n_gl: int = 16) -> HankelKernel:
+    """The `HankelKernel` for lobes on these basis widths; the basis e^{−ρ²/w²} has g(r) = πw² e^{−π²w²r²}."""
     from scipy.special import j0
 
     r_max = 5.0 / (np.pi * widths.min())
@@ -130,7 +141,7 @@ def _hankel_pair(widths, rho_max: float = 2.2, n_panels: int = 80, n_gl: int = 1
     r = ((edges[:-1, None] + half) + half * x).ravel()
     w_line = (half * w).ravel()
     rho = np.linspace(0.0, rho_max, 441)
-    return r, w_line, rho, j0(2.0 * np.pi * rho[:, None] * r[None, :]) * (w_line * 2.0 * np.pi * r)
+    return HankelKernel(r, w_line, rho, j0(2.0 * np.pi * rho[:, None] * r[None, :]) * (w_line * 2.0 * np.pi * r))
 
 
 def continue_lobe(coef_ref, widths, X_ref: float, X_new: float, kernel, min_width: float = 0.0):
@@ -141,8 +152,8 @@ def continue_lobe(coef_ref, widths, X_ref: float, X_new: float, kernel, min_widt
     A = g(0)/(1 − e^{−X_ref}) and γ(r) = ln(1 + e^{X_ref} g/A)/X_ref, evaluate g at X_new, transform
     back and fit the Gaussian basis (relative weights down to 1 % of the peak, non-negative).
     """
-    rho = kernel[2]
-    L = kernel[3] @ _continued_transforms(coef_ref, widths, X_ref, X_new, kernel)[:, 0]
+    rho = kernel.rho
+    L = kernel.K @ _continued_transforms(coef_ref, widths, X_ref, X_new, kernel)[:, 0]
     if not np.any(L != 0):
         return np.zeros_like(coef_ref)
     c, _ = fit_radial_lobe(rho, L, np.ones_like(L), widths, "rotate", min_width, floor=0.01 * max(L.max(), 1e-300))
@@ -152,7 +163,7 @@ def continue_lobe(coef_ref, widths, X_ref: float, X_new: float, kernel, min_widt
 def _continued_transforms(coef_ref, widths, X_ref, X_new, kernel):
     """The 2-D Fourier transform g(r) of the lobe continued from X_ref to each X_new (`continue_lobe`),
     on the kernel's r nodes. Shape (r, len(X_new)); zeros when the reference lobe is empty."""
-    r = kernel[0]
+    r = kernel.r
     X_new = np.atleast_1d(np.asarray(X_new, float))[None, :]
     g_ref = np.sum(coef_ref * np.pi * widths**2 * np.exp(-(np.pi**2) * widths**2 * r[:, None] ** 2), -1)
     A = g_ref[0] / -np.expm1(-X_ref)
@@ -186,7 +197,7 @@ def _roughness(mu, R_coh, R_inc, coef, widths, ref: int, kernel, reach):
     if np.any(use):
         m = np.asarray(mu, float)[: ref + 1][use]
         return float(np.sum(m**2 * -np.log(frac[use])) / (4.0 * np.sum(m**4)))
-    r, w_line = kernel[0], kernel[1]
+    r, w_line = kernel.r, kernel.w_line
     c = 2.0 * np.asarray(mu, float)
     others = np.nonzero((np.arange(c.size) != ref) & (reach > 0) & np.any(coef > 0, -1))[0]
     t = np.linspace(0.0, 1.0, 101)
