@@ -11,7 +11,7 @@ from scipy.stats import binom
 
 from paintjax.inverse._analytic import AnalyticForward
 from paintjax.inverse._parameters import make_spec
-from paintjax.inverse._posterior import LogPosterior, sample_posterior
+from paintjax.inverse._posterior import LogPosterior, chain_diagnostics, sample_posterior
 from paintjax.inverse._posterior_output import corner_plot, save_netcdf
 
 MIRROR = AnalyticForward(rough=False)
@@ -139,6 +139,33 @@ def test_jax_log_density_is_the_log_posterior_and_differentiable():
     slow = CallableForward(lambda x: np.asarray(MIRROR(x)), MIRROR.parameter_names, "mirror-callable")
     with pytest.raises(ValueError, match="not jit-able"):
         LogPosterior(slow, y, free=FREE, fixed=FIXED).jax_log_density()
+
+
+def test_chain_diagnostics_on_known_chains():
+    """Independent normal draws (32 walkers × 400 steps): R-hat within 1 ± 0.01 and bulk ESS near the
+    12 800 draws; walkers stuck at two different means: R-hat far above 1.01. A chain of 3 steps is
+    too short (NaN), so it can never pass the rule."""
+    rng = np.random.default_rng(0)
+    rhat, ess = chain_diagnostics(rng.standard_normal((400, 32, 2)))
+    assert np.all(np.abs(rhat - 1.0) < 0.01) and np.all((ess > 0.8 * 12800) & (ess < 1.2 * 12800)), (rhat, ess)
+    stuck = rng.standard_normal((400, 32, 2)) + np.repeat([0.0, 1.0], 16)[None, :, None]
+    assert np.all(chain_diagnostics(stuck)[0] > 1.1)
+    assert np.all(np.isnan(chain_diagnostics(rng.standard_normal((3, 32, 2)))[0]))
+
+
+def test_stopping_rule_requires_rhat_and_bulk_ess():
+    """A run that stops as converged has every parameter's split R-hat ≤ max_rhat and bulk ESS ≥ min_ess
+    (walkers as chains); the same chain with an unattainable R-hat bound runs to max_steps, not converged."""
+    y = _data({"shape": 3.0, "scale": 1.5}, np.random.default_rng(5))
+    kw = dict(free=FREE, fixed=FIXED, walkers=16, min_steps=250, check_every=250, min_ess=400, init={"shape": 3.0, "scale": 1.5},
+              seed=0, progress=False, inference_data=False)
+    post = sample_posterior(MIRROR, y, max_steps=6000, **kw)
+    assert post.converged and post.steps < 6000
+    assert max(post.rhat.values()) <= 1.01 and min(post.ess_bulk.values()) >= 400, (post.rhat, post.ess_bulk)
+    strict = sample_posterior(MIRROR, y, max_steps=post.steps + 250, max_rhat=1.0 + 1e-9, **kw)
+    assert not strict.converged and strict.steps == post.steps + 250
+    with pytest.raises(ValueError, match="max_rhat must be >= 1"):
+        sample_posterior(MIRROR, y, max_rhat=0.99, **kw)
 
 
 def test_posterior_bad_inputs():

@@ -46,7 +46,7 @@ MODEL_RANGES = {"--starts": Range(1, MAX_STARTS, integer=True), "--seed": SEED}
 #: The validation layer's ranges (flag → `Range`), checked before any model is built (the walkers' count, even and
 #: at least twice the sampled parameters, in `check_run_sizes` and `check_walkers`).
 RANGES = {**MODEL_RANGES, "--workers": Range(1, None, integer=True), "--max-steps": Range(1, MAX_POSTERIOR_STEPS, integer=True),
-          "--min-ess": Range(0.0, None), "--tilt-platelets": Range(0, 1_000_000, integer=True)}
+          "--min-ess": Range(0.0, None), "--max-rhat": Range(1.0, None), "--tilt-platelets": Range(0, 1_000_000, integer=True)}
 
 
 def add_model_arguments(p, *, starts: int = 8) -> None:
@@ -93,8 +93,9 @@ def add_fit_arguments(p) -> None:
     add_model_arguments(p)
     p.add_argument("--posterior", action="store_true", help="also sample the posterior with emcee")
     p.add_argument("--walkers", type=int, default=32, help="emcee walkers (default 32)")
-    p.add_argument("--max-steps", type=int, default=20000, help="largest number of emcee steps (default 20000)")
+    p.add_argument("--max-steps", type=int, default=60000, help="largest number of emcee steps (default 60000)")
     p.add_argument("--min-ess", type=float, default=1000.0, help="required effective sample size (default 1000; 0: stop on the autocorrelation-time rule alone)")
+    p.add_argument("--max-rhat", type=float, default=1.01, help="largest split R-hat of any parameter, walkers as chains (default 1.01)")
     p.add_argument("--inputs", choices=("none", "rq", "local_pv", "scan_pv"), default="none",
                    help="with --posterior and --sample: add the sample's published inputs as data, the roughness through the "
                    "virtual profilometer with σ read as the given definition (rq: RMS height) and the tilt law as a gamma fit to "
@@ -161,11 +162,12 @@ def compute(args) -> dict:
         from ..inverse._posterior_output import corner_plot, save_netcdf
 
         pr = sample_posterior(forward, measured, free=post_free, fixed=post_fixed, walkers=args.walkers, max_steps=args.max_steps,
-                              min_steps=min(500, args.max_steps), check_every=min(250, args.max_steps), min_ess=args.min_ess, init=fr, seed=args.seed, backend_path=args.chain,
+                              min_steps=min(500, args.max_steps), check_every=min(250, args.max_steps), min_ess=args.min_ess, max_rhat=args.max_rhat, init=fr, seed=args.seed,
+                              backend_path=args.chain,
                               overwrite=args.overwrite,
                               progress=not args.no_progress and not args.json, inputs=inputs)
         d = pr.to_dict()
-        out["posterior"] = {k: d[k] for k in ("mean", "q05", "q50", "q95", "tau_int", "n_eff", "steps", "converged", "acceptance",
+        out["posterior"] = {k: d[k] for k in ("mean", "q05", "q50", "q95", "tau_int", "n_eff", "rhat", "ess_bulk", "steps", "converged", "acceptance",
                                               "L_star_mean", "L_star_q05", "L_star_q95")}
         from ..inverse._measured_inputs import posterior_predictive_check
 
@@ -238,7 +240,7 @@ def run_batch(args) -> int:
     free = parse_free(args.free, ("shape", "scale", "sigma", "tau"))
     out = Path(args.out or "results/fit_panels") / "fit_panels.csv"
     data = example_panels() if args.data == "example" else args.data
-    posterior = {"walkers": args.walkers, "max_steps": args.max_steps, "min_ess": args.min_ess} if args.posterior else None
+    posterior = {"walkers": args.walkers, "max_steps": args.max_steps, "min_ess": args.min_ess, "max_rhat": args.max_rhat} if args.posterior else None
     t0 = time.perf_counter()
 
     def report(row, n, total):

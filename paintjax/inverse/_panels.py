@@ -173,7 +173,7 @@ def fit_panel(panel: dict, forward: str, free: Sequence[str], n_starts: int, see
             `KnownInputs`).
         forward, free, n_starts, seed: the fit (`make_forward`, `fit_least_squares`).
         posterior: None (least squares only) or the `sample_posterior` settings {"walkers",
-            "max_steps", "min_ess"}; the model discrepancy δ is sampled.
+            "max_steps", "min_ess"} and optionally "max_rhat" (default 1.01); the model discrepancy δ is sampled.
 
     Returns:
         The results row (module docstring).
@@ -213,8 +213,6 @@ def fit_panel(panel: dict, forward: str, free: Sequence[str], n_starts: int, see
 
 def _panel_posterior(fwd, names, L, sd, have, known, fr, settings: dict, seed: int, angles) -> dict:
     """The posterior columns of a panel's row (see `fit_panel`)."""
-    import arviz as az
-
     from ._measured_inputs import KnownInputs, posterior_predictive_check
     from ._posterior import sample_posterior
 
@@ -222,11 +220,10 @@ def _panel_posterior(fwd, names, L, sd, have, known, fr, settings: dict, seed: i
     steps = int(settings["max_steps"])
     pr = sample_posterior(fwd, L, free=tuple(names) + ("discrepancy",), angles=have, instrument_sd=sd, inputs=inputs,
                           walkers=int(settings["walkers"]), max_steps=steps, min_steps=min(500, steps), check_every=min(250, steps),
-                          min_ess=float(settings["min_ess"]), init=fr, seed=seed, progress=False)
+                          min_ess=float(settings["min_ess"]), max_rhat=float(settings.get("max_rhat", 1.01)), init=fr, seed=seed, progress=False)
     check = posterior_predictive_check(pr, fwd, L, angles=have, instrument_sd=sd, seed=seed)
-    post = pr.idata.posterior[list(pr.names)]
-    out = {"posterior_converged": bool(pr.converged), "steps": int(pr.steps), "rhat_max": float(az.rhat(post).to_array().max()),
-           "ess_bulk_min": float(az.ess(post, method="bulk").to_array().min()), "predictive_p": float(check["p_value"]),
+    out = {"posterior_converged": bool(pr.converged), "steps": int(pr.steps), "rhat_max": max(pr.rhat.values()),
+           "ess_bulk_min": min(pr.ess_bulk.values()), "predictive_p": float(check["p_value"]),
            "posterior_edge": ";".join(f"{n}:{side}" for n, side in pr.at_edge.items())}
     for name in list(pr.names) + (["mean_tilt"] if "mean_tilt" in pr.q50 else []):
         out[f"{name}_q05"], out[f"{name}_q50"], out[f"{name}_q95"] = pr.q05[name], pr.q50[name], pr.q95[name]
@@ -387,8 +384,8 @@ def fit_panels(
         from ._posterior import check_walkers
 
         check_walkers(int(posterior["walkers"]), len(free) + 1)
-        if int(posterior["max_steps"]) < 1 or not float(posterior["min_ess"]) >= 0:
-            raise ValueError(f"posterior max_steps must be >= 1 and min_ess >= 0, got {posterior}")
+        if int(posterior["max_steps"]) < 1 or not float(posterior["min_ess"]) >= 0 or not float(posterior.get("max_rhat", 1.01)) >= 1:
+            raise ValueError(f"posterior max_steps must be >= 1, min_ess >= 0 and max_rhat >= 1, got {posterior}")
     panels, bad = read_panels(data)
     stray = sorted({n for p in panels for n in p["known"]} - set(free))
     if stray:

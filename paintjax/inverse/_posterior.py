@@ -17,8 +17,10 @@ call. With `pool=` the ensemble is split into one chunk per pool worker and mapp
 `pool.map` (an MPI or multiprocessing pool; each worker compiles its own forward). Chains are
 stored in an HDF5 backend so an interrupted run resumes where it stopped; the run stops when
 the chain is longer than `n_tau` (≥ 50) integrated autocorrelation times, the τ estimate has
-settled (relative change < 5 %) and the effective sample size reaches `min_ess` — or at
-`max_steps`, reported as not converged. Results: `PosteriorResult` with ArviZ InferenceData
+settled (relative change < 5 %), the effective sample size reaches `min_ess` (both emcee's
+walkers × steps / τ and ArviZ's bulk ESS of every parameter) and ArviZ's rank-normalised split
+R-hat of every parameter is at most `max_rhat` (1.01; walkers taken as chains, after burn-in and
+thinning) — or at `max_steps`, reported as not converged. Results: `PosteriorResult` with ArviZ InferenceData
 (NetCDF, written atomically) and a corner plot.
 """
 
@@ -53,6 +55,8 @@ class PosteriorResult:
         chain: (steps, walkers, p) full chain.
         mean, q05, q50, q95, tau_int: per-name summaries (τ in steps).
         n_eff: effective sample size, walkers × (steps − burn) / max τ.
+        rhat, ess_bulk: per-name ArviZ rank-normalised split R-hat and bulk ESS of the kept draws
+            (walkers as chains).
         steps, burn, thin, walkers: run geometry; converged: the stopping rule was met.
         acceptance: mean acceptance fraction; seconds: wall time of this call.
         L_star_mean, L_star_q05, L_star_q95: posterior predictive band of the model curve.
@@ -71,6 +75,8 @@ class PosteriorResult:
     q95: dict
     tau_int: dict
     n_eff: float
+    rhat: dict
+    ess_bulk: dict
     steps: int
     burn: int
     thin: int
@@ -107,6 +113,8 @@ class PosteriorResult:
             "q95": dict(self.q95),
             "tau_int": dict(self.tau_int),
             "n_eff": self.n_eff,
+            "rhat": dict(self.rhat),
+            "ess_bulk": dict(self.ess_bulk),
             "steps": self.steps,
             "burn": self.burn,
             "thin": self.thin,
@@ -122,7 +130,8 @@ class PosteriorResult:
 
     def summary(self) -> str:
         lines = [f"posterior: {self.walkers} walkers × {self.steps} steps (burn {self.burn}, thin {self.thin}); "
-                 f"n_eff ≈ {self.n_eff:.0f}; {'converged' if self.converged else 'NOT converged'}; acceptance {self.acceptance:.2f}"]
+                 f"n_eff ≈ {self.n_eff:.0f}; R-hat ≤ {max(self.rhat.values(), default=float('nan')):.3f}; "
+                 f"bulk ESS ≥ {min(self.ess_bulk.values(), default=float('nan')):.0f}; {'converged' if self.converged else 'NOT converged'}; acceptance {self.acceptance:.2f}"]
         for n in self.mean:
             lines.append(f"  {n:>12}: mean {self.mean[n]:.4g}, 90% [{self.q05[n]:.4g}, {self.q95[n]:.4g}], τ_int {self.tau_int.get(n, float('nan')):.0f}")
         for n, side in self.at_edge.items():
@@ -287,11 +296,12 @@ def sample_posterior(
     bounds: Mapping[str, tuple[float, float]] | None = None,
     instrument_sd: float = INSTRUMENT_SD,
     walkers: int = 32,
-    max_steps: int = 20000,
+    max_steps: int = 60000,
     min_steps: int = 500,
     check_every: int = 250,
     n_tau: float = 50.0,
     min_ess: float = 1000.0,
+    max_rhat: float = 1.01,
     init: FitResult | Mapping[str, float] | None = None,
     seed: int = 0,
     backend_path: str | os.PathLike | None = None,
@@ -318,7 +328,8 @@ def sample_posterior(
         walkers: ensemble size (≥ 2·p, even).
         max_steps, min_steps, check_every: chain-length limits and convergence-check period.
         n_tau: required chain length in integrated autocorrelation times (≥ 50 by default).
-        min_ess: required effective sample size.
+        min_ess: required effective sample size (emcee's from τ, and ArviZ's bulk ESS of every parameter).
+        max_rhat: largest ArviZ split R-hat of any parameter, walkers as chains (≥ 1; inf: no R-hat rule).
         init: where to start the walkers (a `FitResult` or values); default: a least-squares fit.
         seed: seed of the initial ball and of emcee's generator.
         backend_path: HDF5 file for the chain (None: in memory, no resume).
@@ -351,6 +362,8 @@ def sample_posterior(
     check_walkers(walkers, p)
     if n_tau < 1 or min_steps < 1 or max_steps < min_steps or check_every < 1:
         raise ValueError(f"need n_tau >= 1, 1 <= min_steps <= max_steps, check_every >= 1; got {n_tau}, {min_steps}, {max_steps}, {check_every}")
+    if not max_rhat >= 1.0:
+        raise ValueError(f"max_rhat must be >= 1 (inf: no R-hat rule), got {max_rhat!r}")
     fn = lp if pool is None else _PooledLogPosterior(lp, pool, _pool_size(pool))
 
     backend = None
@@ -387,9 +400,37 @@ def sample_posterior(
         settled = old_tau is not None and np.all(np.abs(old_tau - tau) < 0.05 * tau)
         old_tau = tau
         if it >= min_steps and np.all(n_tau * tau < it) and settled and ess >= min_ess:
-            converged = True
-            break
+            burn, thin = _burn_thin(tau, it)
+            rhat, ess_bulk = chain_diagnostics(np.asarray(lp.spec.from_unconstrained(sampler.get_chain()[burn::thin])))
+            if np.max(rhat) <= max_rhat and np.min(ess_bulk) >= min_ess:
+                converged = True
+                break
     return _result(sampler, lp, converged, t0, backend_path, inference_data)
+
+
+def _burn_thin(tau, it: int) -> tuple[int, int]:
+    """Burn-in (2 max τ, at most half the chain) and thinning (τ_min / 2) of a chain of `it` steps."""
+    finite = bool(np.all(np.isfinite(tau)))
+    tmax = float(np.max(tau)) if finite else float(it)
+    return min(int(2 * tmax), it // 2), (max(1, int(0.5 * np.min(tau))) if finite else 1)
+
+
+def chain_diagnostics(chain) -> tuple[np.ndarray, np.ndarray]:
+    """ArviZ rank-normalised split R-hat and bulk ESS per parameter of an emcee chain, walkers as chains.
+
+    Arguments:
+        chain: (steps, walkers, p) draws (after burn-in and thinning).
+
+    Returns:
+        (rhat, ess_bulk), each of shape (p,); NaN where a parameter has too few draws.
+    """
+    import arviz as az
+
+    chain = np.asarray(chain, float)
+    if chain.ndim != 3 or chain.shape[0] < 4:
+        return np.full(chain.shape[-1], np.nan), np.full(chain.shape[-1], np.nan)
+    per = np.moveaxis(chain, 2, 0).swapaxes(1, 2)  # (p, walkers, steps)
+    return (np.array([float(az.rhat(x)) for x in per]), np.array([float(az.ess(x, method="bulk")) for x in per]))
 
 
 def _initial_ball(lp: LogPosterior, init, walkers: int, rng, seed: int) -> np.ndarray:
@@ -504,8 +545,7 @@ def _result(sampler, lp: LogPosterior, converged: bool, t0: float, backend_path,
     it = sampler.iteration
     tau = sampler.get_autocorr_time(tol=0)
     tmax = float(np.max(tau)) if np.all(np.isfinite(tau)) else float(it)
-    burn = min(int(2 * tmax), it // 2)
-    thin = max(1, int(0.5 * np.min(tau))) if np.all(np.isfinite(tau)) else 1
+    burn, thin = _burn_thin(tau, it)
     chain_u = sampler.get_chain()
     chain = np.asarray(spec.from_unconstrained(chain_u))
     flat_u = sampler.get_chain(discard=burn, thin=thin, flat=True)
@@ -533,6 +573,7 @@ def _result(sampler, lp: LogPosterior, converged: bool, t0: float, backend_path,
                "converged": int(converged), "note": "walkers are stored as ArviZ chains (emcee ensemble)"},
     )
     n_eff = float(sampler.nwalkers * max(it - burn, 0) / tmax) if tmax > 0 else 0.0
+    rhat, ess_bulk = chain_diagnostics(kept)
     return PosteriorResult(
         names=names,
         samples=flat,
@@ -543,6 +584,8 @@ def _result(sampler, lp: LogPosterior, converged: bool, t0: float, backend_path,
         q95={k: float(v[2]) for k, v in q.items()},
         tau_int={n: float(t) for n, t in zip(names, tau)},
         n_eff=n_eff,
+        rhat=dict(zip(names, map(float, rhat))),
+        ess_bulk=dict(zip(names, map(float, ess_bulk))),
         steps=int(it),
         burn=burn,
         thin=thin,
