@@ -116,7 +116,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--build-only", action="store_true", help="build (or load) the emulator and stop")
     ap.add_argument("--walkers", type=int, default=32)
-    ap.add_argument("--max-steps", type=int, default=12000)
+    ap.add_argument("--max-steps", type=int, default=60000)
     ap.add_argument("--min-ess", type=float, default=1000.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--definition", default="rq", choices=SIGMA_DEFINITIONS,

@@ -53,6 +53,7 @@ def inference(*, seed: int = 0, progress: bool = True) -> dict:
             "predictive_p_value": strict["check"]["p_value"],
             "verdict": r["verdict"],
             "at_edge": post["at_edge"],
+            "converged": {label: bool(r[label]["posterior"].converged) for label in ("L* and inputs", "L* and inputs, no discrepancy")},
             "seconds": time.perf_counter() - t0,
         }
     return out
@@ -76,6 +77,9 @@ def run(args) -> int:
                         f"{v['q95'] * _SHOWN[k][1]:.3g}]" for k, v in p["estimates"].items())
         print(f"  {name}: {est} (posterior mean [90 %])")
         print(f"    L* measured {np.round(p['measured'], 1).tolist()}, posterior median {np.round(p['L_star_q50'], 1).tolist()}")
+        for label, done in p["converged"].items():
+            if not done:
+                print(f"    WARNING: the posterior '{label}' did not meet the stopping rule (R-hat, ESS) within its steps")
         for k, side in p["at_edge"].items():
             print(f"    WARNING: the posterior of {_SHOWN.get(k, (k,))[0]} piles against the {side} edge of the prior box")
         verdict = ("the inputs and the L* DISAGREE within the stated errors" if p["verdict"] == "disagree"

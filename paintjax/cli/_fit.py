@@ -7,8 +7,8 @@ import time
 
 from .._cache import enable_compilation_cache
 from .._validate import SEED, Range
+from ..inverse._chain import MAX_WALKERS
 from ..inverse._fit import MAX_STARTS
-from ..inverse._posterior import MAX_WALKERS
 from ._common import add_json_argument, parse_floats, print_json
 
 #: Default forward model: the ray tracer through its wide-box emulator (shipped with the package).
@@ -189,7 +189,8 @@ def compute(args) -> dict:
 def _posterior_setup(args, forward, measured, lsq_free, fixed):
     """(free, fixed, inputs) of the posterior, with the walkers and the --chain checked (nothing written)."""
     from .._samples import load_sample
-    from ..inverse._posterior import LogPosterior, check_chain, check_walkers
+    from ..inverse._chain import check_chain, check_walkers
+    from ..inverse._posterior import LogPosterior
 
     post_free = tuple(n for n in lsq_free if n != "discrepancy")
     post_fixed = {k: v for k, v in fixed.items() if k in forward.parameter_names or k == "discrepancy"}

@@ -8,6 +8,7 @@ orientation measurement for the tilt law), which say what the published inputs i
 """
 
 from ._analytic import AnalyticForward
+from ._chain import check_chain
 from ._design import DesignResult, design_to_target
 from ._emulator import Emulator, build_emulator, emulator_check, fit_emulator
 from ._error_model import EmulatorError, fit_emulator_error
@@ -16,7 +17,7 @@ from ._forward import CallableForward, ForwardModel
 from ._measured_inputs import MeasuredInputs, posterior_predictive_check
 from ._panels import fit_panel, fit_panels, read_panels, read_results
 from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
-from ._posterior import LogPosterior, PosteriorResult, check_chain, sample_posterior
+from ._posterior import LogPosterior, PosteriorResult, sample_posterior
 from ._posterior_output import corner_plot, save_netcdf
 from ._profilometer import (
     SIGMA_DEFINITIONS,

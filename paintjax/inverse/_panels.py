@@ -381,7 +381,7 @@ def fit_panels(
     if int(workers) < 1:
         raise ValueError(f"workers must be >= 1, got {workers!r}")
     if posterior is not None:
-        from ._posterior import check_walkers
+        from ._chain import check_walkers
 
         check_walkers(int(posterior["walkers"]), len(free) + 1)
         if int(posterior["max_steps"]) < 1 or not float(posterior["min_ess"]) >= 0 or not float(posterior.get("max_rhat", 1.01)) >= 1:

@@ -33,7 +33,7 @@ def panel_posteriors(
     definition: str = "rq",
     tilt_platelets: int = 200,
     walkers: int = 32,
-    max_steps: int = 12000,
+    max_steps: int = 60000,
     min_ess: float = 1000.0,
     seed: int = 0,
     on_run: Callable[[str, dict], None] | None = None,
