@@ -102,7 +102,7 @@ def clean_curve(forward_name: str, options: dict, i: int, t) -> dict:
 
 
 def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,
-            levels) -> dict:
+            levels, converge: bool = False) -> dict:
     """Least squares and the posterior of one synthetic dataset (a task): its row of the summary."""
     forward, _, _, extra_fixed = _models(forward_name, options)
     truth = dict(zip(ALL, map(float, t)))
@@ -111,12 +111,15 @@ def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, s
     best = fr.chi2
     same = sum(np.isfinite(s["chi2"]) and s["chi2"] <= best + 1e-3 * max(1.0, best) for s in fr.starts)
     z = {n: (fr.values[n] - truth[n]) / fr.stderr[n] if fr.stderr[n] > 0 else np.nan for n in free}
+    # fixed-length chains of `steps`, or (converge) chains run to the package's stopping rule with at most `steps`
+    rule = dict(min_steps=500, check_every=250) if converge else dict(min_steps=steps, check_every=steps, min_ess=0)
     post = sample_posterior(forward, y, free=free, fixed={**extra_fixed, "discrepancy": 0.0, **held}, walkers=walkers, max_steps=steps,
-                            min_steps=steps, check_every=steps, min_ess=0, init=fr, seed=seed + i, progress=False, inference_data=False)
+                            **rule, init=fr, seed=seed + i, progress=False, inference_data=False)
     row = {"truth": truth, "L_star_clean": np.asarray(clean["clean"]).tolist(), "L_star_clean_se": np.asarray(clean["clean_se"]).tolist(),
            "L_star": np.asarray(y).tolist(), "lsq": fr.values, "lsq_stderr": fr.stderr,
            "lsq_chi2": best, "lsq_success": fr.success, "starts_at_best": int(same), "lsq_z": z,
-           "tau_int_max": max(post.tau_int.values()), "n_eff": post.n_eff, "inside": {},
+           "tau_int_max": max(post.tau_int.values()), "n_eff": post.n_eff, "steps": post.steps, "converged": post.converged,
+           "rhat_max": max(post.rhat.values()), "inside": {},
            # probability integral transform: the posterior CDF at the truth (uniform when calibrated)
            "pit": {n: float(np.mean(post.draws(n) < truth[n])) for n in free}}
     for lv in levels:
@@ -133,7 +136,7 @@ def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, s
 
 
 def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Path, free=("shape", "scale"),
-        forward_name: str = "analytic", forward_options: dict | None = None, levels=(0.5, 0.9), client=None) -> dict:
+        forward_name: str = "analytic", forward_options: dict | None = None, levels=(0.5, 0.9), client=None, converge: bool = False) -> dict:
     """The study; with a Dask `client` the tracer runs and the datasets' fits and posteriors are tasks on
     its workers (the same numbers as the serial loop: draws, noise and seeds do not depend on the order)."""
     global FREE
@@ -173,10 +176,10 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     noisy = [c["clean"] + rng.normal(0.0, 0.3, 5) for _, c in kept]  # the noise stream in draw order
     n = len(kept)
     rows = tasks(analyse, [forward_name] * n, [options] * n, [i for i, _ in kept], [truths[i] for i, _ in kept], [c for _, c in kept],
-                 noisy, [FREE] * n, [starts] * n, [steps] * n, [walkers] * n, [seed] * n, [levels] * n)
+                 noisy, [FREE] * n, [starts] * n, [steps] * n, [walkers] * n, [seed] * n, [levels] * n, [converge] * n)
     for k, row in enumerate(rows, start=1):
         print(f"dataset {k}/{datasets}: χ²={row['lsq_chi2']:.3g}, starts at best {row['starts_at_best']}/{starts}, "
-              f"inside@{levels[-1]:g}={[row['inside'][f'{p}@{levels[-1]}'] for p in FREE]}, n_eff={row['n_eff']:.0f}", flush=True)
+              f"inside@{levels[-1]:g}={[row['inside'][f'{p}@{levels[-1]}'] for p in FREE]}, n_eff={row['n_eff']:.0f}, steps {row['steps']}", flush=True)
     tracer_seconds = sum(c["seconds"] for _, c in kept)
     coverage, calibration = coverage_tables(rows, FREE, levels)
     recovered = [r for r in rows if r["lsq_chi2"] < 20.0]
@@ -190,7 +193,7 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
         "forward": forward_name,
         "prior_box": {n: [float(spec.lower[j]), float(spec.upper[j])] for j, n in enumerate(spec.names)},
         "free": list(FREE), "held_at_truth": [k for k in ALL if k not in FREE],
-        "datasets": datasets, "walkers": walkers, "steps": steps, "lsq_starts": starts, "seed": seed,
+        "datasets": datasets, "walkers": walkers, "steps": steps, "converge": converge, "lsq_starts": starts, "seed": seed,
         "coverage": coverage,
         # the binomial ranges are per cell (95 %); with 2 levels × len(FREE) cells, one cell outside
         # by chance is likely (8 independent cells: 1 − 0.95⁸ ≈ 34 %), so the PIT uniformity test
@@ -244,6 +247,7 @@ def combine(folders, out: Path) -> dict:
     keys = ("forward", "forward_model", "free", "walkers", "steps", "prior_box")
     for part, folder in zip(parts[1:], folders[1:]):
         differ = [k for k in keys if part[k] != parts[0][k]] + (["levels"] if set(part["coverage"]) != set(parts[0]["coverage"]) else [])
+        differ += ["converge"] if part.get("converge", False) != parts[0].get("converge", False) else []
         if differ:
             raise SystemExit(f"{folder} is not the same study as {folders[0]}: {', '.join(differ)} differ")
     seeds = [p["seed"] for p in parts]
@@ -253,7 +257,7 @@ def combine(folders, out: Path) -> dict:
     rows = [r for p in parts for r in p["rows"]]
     levels = sorted(float(lv) for lv in parts[0]["coverage"])
     coverage, calibration = coverage_tables(rows, FREE, levels)
-    summary = {k: parts[0][k] for k in keys} | {
+    summary = {k: parts[0][k] for k in keys} | {"converge": parts[0].get("converge", False),
         "pooled_from": [{"folder": str(f), "seed": p["seed"], "datasets": p["datasets"]} for f, p in zip(folders, parts)],
         "datasets": len(rows), "coverage": coverage, "calibration": calibration,
         "skipped_prior_draws": [s for p in parts for s in p["skipped_prior_draws"]], "rows": rows}
@@ -321,6 +325,8 @@ def main(argv=None):
     ap.add_argument("--datasets", type=int, default=20)
     ap.add_argument("--steps", type=int, default=1500)
     ap.add_argument("--walkers", type=int, default=16)
+    ap.add_argument("--converge", action="store_true", help="run each posterior to the package's stopping rule (R-hat ≤ 1.01, "
+                    "bulk ESS ≥ 1000) with at most --steps steps, instead of chains of exactly --steps steps")
     ap.add_argument("--starts", type=int, default=4)
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--free", help="parameters inferred (others held at their true values); default shape,scale "
@@ -357,7 +363,8 @@ def main(argv=None):
         client = Client(a.scheduler) if a.scheduler else Client(LocalCluster(n_workers=a.workers, threads_per_worker=1,
                                                                                dashboard_address=":0"))
     try:
-        s = run(a.datasets, a.steps, a.walkers, a.starts, a.seed, out, tuple(free.split(",")), a.forward, levels=levels, client=client)
+        s = run(a.datasets, a.steps, a.walkers, a.starts, a.seed, out, tuple(free.split(",")), a.forward, levels=levels, client=client,
+                converge=a.converge)
     finally:
         if client is not None:
             cluster = getattr(client, "cluster", None)
