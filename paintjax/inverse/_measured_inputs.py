@@ -58,6 +58,11 @@ class MeasuredInputs(eqx.Module):
         nodes = None if self.reading is None else np.round(np.asarray(self.reading.log_tau_hat_mean), 6).tolist()
         return repr((self.sigma_hat_um, self.tau_hat_um, self.definition, self.shape_hat, self.scale_hat, self.tilt_platelets, nodes))
 
+    def start_values(self) -> dict:
+        """The published values of the inputs that are data (a sampler's starting guess, not an estimate)."""
+        out = {"sigma": self.sigma_hat_um, "tau": self.tau_hat_um} if self.reading is not None else {}
+        return out | ({"shape": self.shape_hat, "scale": self.scale_hat} if self.tilt_platelets > 0 else {})
+
     def log_likelihood(self, params: dict):
         """log p(published inputs | true parameters) for the parameters present in `params` (arrays)."""
         total = 0.0
@@ -112,6 +117,10 @@ class KnownInputs(eqx.Module):
     def fingerprint(self) -> str:
         """Identity for chain metadata."""
         return repr(self.items)
+
+    def start_values(self) -> dict:
+        """The known values (a sampler's starting guess)."""
+        return {name: v for name, v, _ in self.items}
 
     def log_likelihood(self, params: dict):
         """Σ log N(value | θ, sd²) over the known inputs present in `params` (arrays)."""
