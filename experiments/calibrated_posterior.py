@@ -32,7 +32,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 from paintjax import atomic_savefig, atomic_write_json, enable_compilation_cache, load_sample, save_netcdf  # noqa: E402
-from paintjax.inverse import SIGMA_DEFINITIONS, WIDE_TRACER_BOX, build_reading_model, panel_posteriors, wide_tracer_emulator  # noqa: E402
+from paintjax.inverse import MAX_STEPS, SIGMA_DEFINITIONS, WIDE_TRACER_BOX, build_reading_model, panel_posteriors, wide_tracer_emulator  # noqa: E402
 
 OUT = Path("experiments/output/calibrated_posterior")
 BOX = WIDE_TRACER_BOX
@@ -116,7 +116,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--build-only", action="store_true", help="build (or load) the emulator and stop")
     ap.add_argument("--walkers", type=int, default=32)
-    ap.add_argument("--max-steps", type=int, default=60000)
+    ap.add_argument("--max-steps", type=int, default=MAX_STEPS)
     ap.add_argument("--min-ess", type=float, default=1000.0)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--definition", default="rq", choices=SIGMA_DEFINITIONS,

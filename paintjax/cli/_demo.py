@@ -41,10 +41,11 @@ def inference(*, seed: int = 0, progress: bool = True) -> dict:
     forward = make_forward("tracer-emulator-wide", ("shape", "scale", "sigma", "tau"), {}, progress=progress)
     reading = build_reading_model(progress=progress)
     out = {"forward": "tracer-emulator-wide", "disagree_below_p": DISAGREE_P, "panels": {}}
+    runs = ("L* and inputs", "L* and inputs, no discrepancy")
     for name in ("silver1", "silver2"):
         s = load_sample(name)
         t0 = time.perf_counter()
-        r = panel_posteriors(forward, s, reading, runs=("L* and inputs", "L* and inputs, no discrepancy"), seed=seed)
+        r = panel_posteriors(forward, s, reading, runs=runs, seed=seed)
         post, strict = r["L* and inputs"]["posterior"].to_dict(), r["L* and inputs, no discrepancy"]
         out["panels"][s.name] = {
             "measured": list(s.L_star),
@@ -53,7 +54,7 @@ def inference(*, seed: int = 0, progress: bool = True) -> dict:
             "predictive_p_value": strict["check"]["p_value"],
             "verdict": r["verdict"],
             "at_edge": post["at_edge"],
-            "converged": {label: bool(r[label]["posterior"].converged) for label in ("L* and inputs", "L* and inputs, no discrepancy")},
+            "converged": {label: bool(r[label]["posterior"].converged) for label in runs},
             "seconds": time.perf_counter() - t0,
         }
     return out

@@ -7,7 +7,7 @@ import time
 
 from .._cache import enable_compilation_cache
 from .._validate import SEED, Range
-from ..inverse._chain import MAX_WALKERS
+from ..inverse._chain import MAX_RHAT, MAX_STEPS, MAX_WALKERS
 from ..inverse._fit import MAX_STARTS
 from ._common import add_json_argument, parse_floats, print_json
 
@@ -93,9 +93,9 @@ def add_fit_arguments(p) -> None:
     add_model_arguments(p)
     p.add_argument("--posterior", action="store_true", help="also sample the posterior with emcee")
     p.add_argument("--walkers", type=int, default=32, help="emcee walkers (default 32)")
-    p.add_argument("--max-steps", type=int, default=60000, help="largest number of emcee steps (default 60000)")
+    p.add_argument("--max-steps", type=int, default=MAX_STEPS, help=f"largest number of emcee steps (default {MAX_STEPS})")
     p.add_argument("--min-ess", type=float, default=1000.0, help="required effective sample size (default 1000; 0: stop on the autocorrelation-time rule alone)")
-    p.add_argument("--max-rhat", type=float, default=1.01, help="largest split R-hat of any parameter, walkers as chains (default 1.01)")
+    p.add_argument("--max-rhat", type=float, default=MAX_RHAT, help=f"largest split R-hat of any parameter, walkers as chains (default {MAX_RHAT})")
     p.add_argument("--inputs", choices=("none", "rq", "local_pv", "scan_pv"), default="none",
                    help="with --posterior and --sample: add the sample's published inputs as data, the roughness through the "
                    "virtual profilometer with σ read as the given definition (rq: RMS height) and the tilt law as a gamma fit to "

@@ -8,7 +8,7 @@ orientation measurement for the tilt law), which say what the published inputs i
 """
 
 from ._analytic import AnalyticForward
-from ._chain import check_chain
+from ._chain import MAX_RHAT, MAX_STEPS, check_chain
 from ._design import DesignResult, design_to_target
 from ._emulator import Emulator, build_emulator, emulator_check, fit_emulator
 from ._error_model import EmulatorError, fit_emulator_error
@@ -73,6 +73,8 @@ __all__ = [
     "corner_plot",
     "sample_posterior",
     "check_chain",
+    "MAX_RHAT",
+    "MAX_STEPS",
     "save_netcdf",
     "make_forward",
     "fit_panels",

@@ -35,6 +35,10 @@ def chain_diagnostics(chain) -> tuple[np.ndarray, np.ndarray]:
     return (np.array([float(az.rhat(x)) for x in per]), np.array([float(az.ess(x, method="bulk")) for x in per]))
 
 
+#: The stopping rule's defaults: the largest split R-hat of any parameter (walkers as chains) and the most steps.
+MAX_RHAT = 1.01
+MAX_STEPS = 60000
+
 #: Most emcee walkers (memory: the chain holds walkers × steps × parameters; the default is 32).
 MAX_WALKERS = 4096
 

@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from .._io import atomic_path, nearest_existing
+from ._chain import MAX_RHAT, check_walkers
 
 #: Aspecular angles a panel may give (MA98, 45° illumination): −15° and the standard five.
 PANEL_ANGLES = (-15, 15, 25, 45, 75, 110)
@@ -173,7 +174,7 @@ def fit_panel(panel: dict, forward: str, free: Sequence[str], n_starts: int, see
             `KnownInputs`).
         forward, free, n_starts, seed: the fit (`make_forward`, `fit_least_squares`).
         posterior: None (least squares only) or the `sample_posterior` settings {"walkers",
-            "max_steps", "min_ess"} and optionally "max_rhat" (default 1.01); the model discrepancy δ is sampled.
+            "max_steps", "min_ess"} and optionally "max_rhat" (default `MAX_RHAT`, 1.01); the model discrepancy δ is sampled.
 
     Returns:
         The results row (module docstring).
@@ -220,7 +221,7 @@ def _panel_posterior(fwd, names, L, sd, have, known, fr, settings: dict, seed: i
     steps = int(settings["max_steps"])
     pr = sample_posterior(fwd, L, free=tuple(names) + ("discrepancy",), angles=have, instrument_sd=sd, inputs=inputs,
                           walkers=int(settings["walkers"]), max_steps=steps, min_steps=min(500, steps), check_every=min(250, steps),
-                          min_ess=float(settings["min_ess"]), max_rhat=float(settings.get("max_rhat", 1.01)), init=fr, seed=seed, progress=False)
+                          min_ess=float(settings["min_ess"]), max_rhat=float(settings.get("max_rhat", MAX_RHAT)), init=fr, seed=seed, progress=False)
     check = posterior_predictive_check(pr, fwd, L, angles=have, instrument_sd=sd, seed=seed)
     out = {"posterior_converged": bool(pr.converged), "steps": int(pr.steps), "rhat_max": max(pr.rhat.values()),
            "ess_bulk_min": min(pr.ess_bulk.values()), "predictive_p": float(check["p_value"]),
@@ -381,10 +382,8 @@ def fit_panels(
     if int(workers) < 1:
         raise ValueError(f"workers must be >= 1, got {workers!r}")
     if posterior is not None:
-        from ._chain import check_walkers
-
         check_walkers(int(posterior["walkers"]), len(free) + 1)
-        if int(posterior["max_steps"]) < 1 or not float(posterior["min_ess"]) >= 0 or not float(posterior.get("max_rhat", 1.01)) >= 1:
+        if int(posterior["max_steps"]) < 1 or not float(posterior["min_ess"]) >= 0 or not float(posterior.get("max_rhat", MAX_RHAT)) >= 1:
             raise ValueError(f"posterior max_steps must be >= 1, min_ess >= 0 and max_rhat >= 1, got {posterior}")
     panels, bad = read_panels(data)
     stray = sorted({n for p in panels for n in p["known"]} - set(free))

@@ -38,7 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._chain import burn_thin, chain_diagnostics, check_chain, check_walkers, write_meta
+from ._chain import MAX_RHAT, MAX_STEPS, burn_thin, chain_diagnostics, check_chain, check_walkers, write_meta
 from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, fit_least_squares
 from ._forward import ForwardModel
 from ._observations import check_angles, check_instrument_sd, check_measured
@@ -296,12 +296,12 @@ def sample_posterior(
     bounds: Mapping[str, tuple[float, float]] | None = None,
     instrument_sd: float = INSTRUMENT_SD,
     walkers: int = 32,
-    max_steps: int = 60000,
+    max_steps: int = MAX_STEPS,
     min_steps: int = 500,
     check_every: int = 250,
     n_tau: float = 50.0,
     min_ess: float = 1000.0,
-    max_rhat: float = 1.01,
+    max_rhat: float = MAX_RHAT,
     init: FitResult | Mapping[str, float] | None = None,
     seed: int = 0,
     backend_path: str | os.PathLike | None = None,
@@ -457,14 +457,15 @@ def _posterior_mode(lp: LogPosterior, starts: list) -> np.ndarray:
     from scipy.optimize import minimize
 
     U = np.stack(starts)
-    best = U[int(np.nanargmax(np.where(np.isfinite(v := lp(U)), v, -np.inf)))]
+    values = np.where(np.isfinite(v := lp(U)), v, -np.inf)
+    best = U[int(np.argmax(values))]
 
     def cost(u):
         v = float(lp(u[None, :])[0])
         return -v if np.isfinite(v) else np.inf
 
     res = minimize(cost, best, method="Nelder-Mead", options={"maxfev": 200 * len(best), "xatol": 1e-3, "fatol": 1e-3})
-    u = res.x if np.isfinite(res.fun) and res.fun <= cost(best) else best
+    u = res.x if np.isfinite(res.fun) and res.fun <= -np.max(values) else best
     spec = lp.spec
     return _start_point(spec, dict(zip(spec.names, np.asarray(spec.from_unconstrained(u), float))))
 

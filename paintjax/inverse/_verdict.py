@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
+from ._chain import MAX_STEPS
 from ._measured_inputs import MeasuredInputs, posterior_predictive_check
 from ._posterior import sample_posterior
 
@@ -33,7 +34,7 @@ def panel_posteriors(
     definition: str = "rq",
     tilt_platelets: int = 200,
     walkers: int = 32,
-    max_steps: int = 60000,
+    max_steps: int = MAX_STEPS,
     min_ess: float = 1000.0,
     seed: int = 0,
     on_run: Callable[[str, dict], None] | None = None,
