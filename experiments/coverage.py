@@ -151,10 +151,21 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
 
         build_info = tracer_info(forward) | {"seconds_this_process": time.perf_counter() - t_build}
 
-    def tasks(fn, *columns):  # serial here, or Dask tasks (results in order)
+    def tasks(fn, *columns, report=None):  # serial here, or Dask tasks (results in order; `report(k, result)` as each finishes)
         if client is None:
-            return [fn(*args) for args in zip(*columns)]
-        return client.gather(client.map(fn, *columns, pure=False))
+            out = []
+            for args in zip(*columns):
+                out.append(fn(*args))
+                if report:
+                    report(len(out), out[-1])
+            return out
+        futures = client.map(fn, *columns, pure=False)
+        if report:
+            from distributed import as_completed
+
+            for done, future in enumerate(as_completed(futures), start=1):
+                report(done, future.result())
+        return client.gather(futures)
 
     # a pool of prior draws: a tilt law whose platelets cannot fit the film (e.g. a steep mean tilt in the wide
     # box) has no tracer array, so its draw is skipped and counted, and the next one is used
@@ -165,7 +176,9 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     nxt = 0
     while len(kept) < datasets and nxt < len(truths):  # waves of the draws still needed: the first `datasets` usable ones
         idx = list(range(nxt, min(len(truths), nxt + datasets - len(kept))))
-        for i, c in zip(idx, tasks(clean_curve, [forward_name] * len(idx), [options] * len(idx), idx, [truths[i] for i in idx])):
+        traced = lambda k, c, m=len(idx): print(f"tracer run {k}/{m} of this wave done ({time.perf_counter() - t0:.0f} s)", flush=True)  # noqa: E731
+        for i, c in zip(idx, tasks(clean_curve, [forward_name] * len(idx), [options] * len(idx), idx, [truths[i] for i in idx],
+                                   report=traced if tracer else None)):
             if "error" in c:
                 skipped.append({"truth": dict(zip(ALL, map(float, truths[i]))), "reason": c["error"]})
                 print(f"prior draw {i + 1} skipped: {c['error']}", flush=True)
@@ -175,11 +188,16 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     rng = np.random.default_rng(seed)
     noisy = [c["clean"] + rng.normal(0.0, 0.3, 5) for _, c in kept]  # the noise stream in draw order
     n = len(kept)
+    t_rows = time.perf_counter()
+
+    def report(k, row):  # one line per finished dataset, with the time left at the mean pace so far
+        spent = time.perf_counter() - t_rows
+        print(f"dataset {k}/{n} done ({spent:.0f} s, about {spent / k * (n - k):.0f} s left): χ²={row['lsq_chi2']:.3g}, "
+              f"starts at best {row['starts_at_best']}/{starts}, inside@{levels[-1]:g}={[row['inside'][f'{p}@{levels[-1]}'] for p in FREE]}, "
+              f"n_eff={row['n_eff']:.0f}, steps {row['steps']}, R-hat {row['rhat_max']:.3f}", flush=True)
+
     rows = tasks(analyse, [forward_name] * n, [options] * n, [i for i, _ in kept], [truths[i] for i, _ in kept], [c for _, c in kept],
-                 noisy, [FREE] * n, [starts] * n, [steps] * n, [walkers] * n, [seed] * n, [levels] * n, [converge] * n)
-    for k, row in enumerate(rows, start=1):
-        print(f"dataset {k}/{datasets}: χ²={row['lsq_chi2']:.3g}, starts at best {row['starts_at_best']}/{starts}, "
-              f"inside@{levels[-1]:g}={[row['inside'][f'{p}@{levels[-1]}'] for p in FREE]}, n_eff={row['n_eff']:.0f}, steps {row['steps']}", flush=True)
+                 noisy, [FREE] * n, [starts] * n, [steps] * n, [walkers] * n, [seed] * n, [levels] * n, [converge] * n, report=report)
     tracer_seconds = sum(c["seconds"] for _, c in kept)
     coverage, calibration = coverage_tables(rows, FREE, levels)
     recovered = [r for r in rows if r["lsq_chi2"] < 20.0]
