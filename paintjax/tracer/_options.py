@@ -37,9 +37,14 @@ class TracerOptions(eqx.Module):
     Arguments:
         lanes: rays in flight per device (default `default_lanes()`: 16 384 on a GPU, 2 048 on a CPU).
         steps_per_call: steps per jit call (a step = one event or `cells_per_step` cells).
-        cells_per_step: grid cells a ray may cross per step (≥ 2). Shadow rays get as many cells
-            as a ray toward any detector through a flat coat can cross in the basecoat
-            (`_shadow_cell_bound`); a wavy coat's steeper ones resume where they stopped.
+        cells_per_step: grid cells a ray may cross per step (≥ 2).
+        shadow_leg_cells: grid cells a shadow ray crosses per pass (≥ 2: a resumed leg may start in the
+            cell where the last one stopped): the step's shadow rays are
+            traced in passes over a compacted buffer, and one not yet decided resumes where it stopped
+            in the next pass, until every shadow ray is decided within the step (the answer does not
+            depend on it). Short legs stop paying for cells a ray never reaches: the fixed-length walk
+            costs the cells to the top of the basecoat at the flat coat's critical angle
+            (`_shadow_cell_bound`) for every ray, most of which end sooner, blocked or out.
         batches: groups of lanes for the batch-means standard errors (≥ 8).
         roulette_weight: Russian roulette below this weight (0 disables roulette).
         max_steps: steps after which a ray is capped (its weight goes to the ledger's caps).
@@ -79,13 +84,14 @@ class TracerOptions(eqx.Module):
     float64: bool = eqx.field(static=True, default=False)
     shadow_roulette: float = eqx.field(static=True, default=0.02)
     shadow_buffer: float = eqx.field(static=True, default=0.25)
+    shadow_leg_cells: int = eqx.field(static=True, default=4)
     edges: str = eqx.field(static=True, default="scatter")
     mis: bool = eqx.field(static=True, default=True)
     reverse_share: float = eqx.field(static=True, default=0.5)
 
     def __check_init__(self):
         for name, v, lo in (("lanes", self.lanes, 1), ("steps_per_call", self.steps_per_call, 1),
-                            ("cells_per_step", self.cells_per_step, 2), ("batches", self.batches, 8),
+                            ("cells_per_step", self.cells_per_step, 2), ("shadow_leg_cells", self.shadow_leg_cells, 2), ("batches", self.batches, 8),
                             ("max_steps", self.max_steps, 1)):
             if int(v) < lo:
                 raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")

@@ -311,19 +311,24 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
 def _shadows(sc: _Scene, opt: TracerOptions, org, sh_dir, sh_lim, sh_val):
     """Trace the pending shadow rays of all lanes (compacted, in passes of a fixed buffer).
 
-    A shadow ray that uses up its cell budget (`_shadow_cell_bound`: only a wavy coat's steeper NEE
-    directions can) resumes where it stopped in a later pass, so every shadow ray is decided.
-    Returns the NEE increment (lanes, m): the pending values of the visible shadow rays.
+    Each pass walks every shadow ray in the buffer by at most `opt.shadow_leg_cells` cells; one not yet
+    decided (no occluder so far, top not reached) resumes where it stopped in a later pass, so every
+    shadow ray is decided, whatever the leg length. Returns the NEE increment (lanes, m): the pending
+    values of the visible shadow rays.
     """
     B, m = sh_val.shape
     total = B * m
     S = max(1, min(total, int(round(opt.shadow_buffer * total))))
     dirs = sh_dir.reshape(-1, 3)
-    # passes: ceil(total / S) for the first leg of every ray, and as many again per resumption (a
-    # ray of tan θ ≤ _WAVY_MAX_TAN_IN needs at most ⌈_WAVY_MAX_TAN_IN / tan θ_c⌉ legs, 3 for n = 1.5
-    # against the 5 allowed). A guard against a runaway loop only: a ray still pending when it
-    # stops would count as occluded, which the leg bound rules out
-    legs = jnp.ceil(_WAVY_MAX_TAN_IN * jnp.sqrt(jnp.maximum(sc.n**2 - 1.0, 1e-12))) + 1.0 if sc.wavy else 1.0
+    # passes: ceil(total / S) per leg. A ray within the flat coat's critical angle crosses at most
+    # shadow_cells cells (`_shadow_cell_bound`): one leg of that many, or legs of `leg` cells of which
+    # each after the first may start in the cell where the last one stopped (the resumption point lies
+    # on its boundary), so ≥ leg − 1 new cells each. One of tan θ ≤ _WAVY_MAX_TAN_IN needs at most
+    # ⌈_WAVY_MAX_TAN_IN / tan θ_c⌉ times as many (3 for n = 1.5, against the 5 allowed). A guard against a
+    # runaway loop only: a ray still pending when it stops would count as occluded, which the bound rules out
+    leg = min(int(opt.shadow_leg_cells), sc.shadow_cells)
+    legs = 1 + -(-(sc.shadow_cells - leg) // max(leg - 1, 1))
+    legs = legs * (jnp.ceil(_WAVY_MAX_TAN_IN * jnp.sqrt(jnp.maximum(sc.n**2 - 1.0, 1e-12))) + 1.0 if sc.wavy else 1.0)
     max_passes = jnp.asarray(legs * (-(-total // S)) + 1).astype(jnp.int32)
 
     def cond(c):
@@ -334,7 +339,7 @@ def _shadows(sc: _Scene, opt: TracerOptions, org, sh_dir, sh_lim, sh_val):
         idx = jnp.nonzero(pending, size=S, fill_value=total)[0]
         ok = idx < total
         j = jnp.minimum(idx, total - 1)
-        tb, _, _, reach, fin = jax.vmap(lambda a, b, c_: _traverse(sc, a, b, c_, True, sc.shadow_cells))(orgs[j], dirs[j], lims[j])
+        tb, _, _, reach, fin = jax.vmap(lambda a, b, c_: _traverse(sc, a, b, c_, True, leg))(orgs[j], dirs[j], lims[j])
         vis = vis.at[idx].max(ok & fin & (tb >= lims[j]), mode="drop")
         pending = pending.at[idx].set(~fin, mode="drop")  # unfinished: no occluder so far, resume at the reach
         orgs = orgs.at[idx].set(orgs[j] + reach[:, None] * dirs[j], mode="drop")

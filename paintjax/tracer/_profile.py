@@ -289,6 +289,7 @@ def profile_wavefront_step(
         "detectors": m,
         "cells_per_step": sc.max_cells,
         "shadow_cells": sc.shadow_cells,
+        "shadow_leg_cells": min(int(opt.shadow_leg_cells), sc.shadow_cells),
         "cell_capacity": int(sc.cells.shape[1]),
         "slab_tests_per_lane_step": sc.max_cells * int(sc.cells.shape[1]),
         "brdf_calls_per_lane_step": {"sample": 1, "evaluate": m, "pdf": (1 + m) * sc.mis + (m + 2) * sc.bidir},

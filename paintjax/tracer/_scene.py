@@ -45,7 +45,7 @@ class _Scene(eqx.Module):
     log_reverse_share: Float[Array, "m"]  # bidirectional MIS: log(reverse rays / forward rays) per detector (−inf: off)
     illum_in_z: Float[Array, " P"]  # |z| of the refracted source directions (projected-area factor of the beam)
     max_cells: int = eqx.field(static=True)  # budget of a ray's step
-    shadow_cells: int = eqx.field(static=True)  # budget of a shadow ray's leg (enough within the flat coat's critical angle)
+    shadow_cells: int = eqx.field(static=True)  # cells a shadow ray crosses at most to the top within the flat coat's critical angle
     wavy: bool = eqx.field(static=True, default=False)  # draw facet normals at the clearcoat surface
     mis: bool = eqx.field(static=True, default=False)  # NEE + BRDF-sampled exits, balance heuristic
     bidir: bool = eqx.field(static=True, default=False)  # NEE weighted against the reverse (detector-side) tracer

@@ -75,10 +75,10 @@ steps; a step moves every ray by one event or by at most `cells_per_step` grid c
 periodic in x, y; slab tests written per component over per-column gathers, the hot loop). A
 lane whose ray has ended is refilled at the next step with the next ray id (prefix sum over the
 dead lanes), so lanes stay busy until the pool drains. Shadow rays are deferred by one step:
-the active ones of all lanes are compacted into a buffer and traced together (any-hit, with a
-cell budget that reaches the top within the flat coat's critical angle; a wavy coat's steeper
-rays resume in later passes), so their cost follows the number of useful shadow
-rays, not lanes × detectors. Shapes are static and padded to buckets, and the grid dimensions
+the active ones of all lanes are compacted into a buffer and traced together (any-hit, in legs of
+`shadow_leg_cells` cells; a ray not yet decided resumes in the next pass, recompacted), so their
+cost follows the number of useful shadow rays and the cells they really cross, not lanes ×
+detectors × the cells to the top. Shapes are static and padded to buckets, and the grid dimensions
 are traced values: no recompilation between calls or between similar arrays. Each ray draws its random numbers from a counter-based hash of
 (seed, ray id, step) (an integer finaliser, far cheaper to compile and run than threefry per
 lane), so the result depends on the seed only, not on the schedule or the device count.
