@@ -4,11 +4,12 @@ The problem is `paintjax fit --sample silver1 --posterior --inputs rq`: Silver #
 shipped tracer emulator (its Student-t error model in the likelihood), the published roughness and
 tilt law as data, δ free (five parameters). Both samplers start from the same least-squares fit.
 
-* emcee: `sample_posterior` with its stopping rule (≥ 50 τ_int, τ settled, ≥ `--min-ess` samples), 32 walkers.
+* emcee: `sample_posterior` with its stopping rule (≥ 50 τ_int, τ settled, ≥ `--min-ess` samples, split R-hat ≤ 1.01), 32 walkers.
 * NUTS: `--chains` chains of BlackJAX's NUTS on `LogPosterior.jax_log_density` (unconstrained
   coordinates), each with Stan's window adaptation (`--warmup` steps) then `--draws` draws.
 
-Both are judged by ArviZ on their draws (walkers or chains as chains): the smallest bulk ESS and the
+Both are judged by ArviZ on their draws (walkers or chains as chains; emcee's after its burn-in and thinning,
+as its stopping rule judges them): the smallest bulk ESS and the
 largest R-hat over the parameters, and wall time including compilation, so the figure of merit is
 bulk ESS per second. The posteriors are compared by their 5/50/95 % quantiles.
 
@@ -99,9 +100,12 @@ def main(argv=None):
     post = sample_posterior(forward, sample.L_star, free=free, walkers=a.walkers, min_ess=a.min_ess, init=fr, inputs=inputs, seed=a.seed,
                             progress=False, inference_data=False)
     wall, cpu_s = time.perf_counter() - t, cpu() - c
-    phys = post.chain[post.burn:].transpose(1, 0, 2)  # (walkers, draws after burn-in, p), physical units
+    # (walkers, draws, p), physical units: the draws the package keeps and its stopping rule judges (after burn-in and
+    # thinning); R-hat of the unthinned draws is reported too (`rhat_unthinned_max`)
+    phys = post.chain[post.burn::post.thin].transpose(1, 0, 2)
     res["emcee"] = {"wall_s": wall, "cpu_s": cpu_s, "walkers": post.walkers, "steps": post.steps, "converged": post.converged,
-                    "log_posterior_evaluations": post.walkers * post.steps} | diagnostics(phys, free)
+                    "log_posterior_evaluations": post.walkers * post.steps, "burn": post.burn, "thin": post.thin,
+                    "rhat_unthinned_max": diagnostics(post.chain[post.burn:].transpose(1, 0, 2), free)["rhat_max"]} | diagnostics(phys, free)
     print("emcee", {k: v for k, v in res["emcee"].items() if k != "quantiles"}, flush=True)
 
     lp = LogPosterior(forward, sample.L_star, free, inputs=inputs)
