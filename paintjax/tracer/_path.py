@@ -321,14 +321,14 @@ def _shadows(sc: _Scene, opt: TracerOptions, org, sh_dir, sh_lim, sh_val):
     S = max(1, min(total, int(round(opt.shadow_buffer * total))))
     dirs = sh_dir.reshape(-1, 3)
     # passes: ceil(total / S) per leg. A ray within the flat coat's critical angle crosses at most
-    # shadow_cells cells (`_shadow_cell_bound`): one leg of that many, or legs of `leg` cells of which
-    # each after the first may start in the cell where the last one stopped (the resumption point lies
-    # on its boundary), so ≥ leg − 1 new cells each. One of tan θ ≤ _WAVY_MAX_TAN_IN needs at most
-    # ⌈_WAVY_MAX_TAN_IN / tan θ_c⌉ times as many (3 for n = 1.5, against the 5 allowed). A guard against a
-    # runaway loop only: a ray still pending when it stops would count as occluded, which the bound rules out
+    # shadow_cells cells (`_shadow_cell_bound`), one of tan θ ≤ _WAVY_MAX_TAN_IN at most
+    # ⌈_WAVY_MAX_TAN_IN / tan θ_c⌉ times as many (3 for n = 1.5; 5 allowed). The first leg crosses `leg`
+    # new cells, each later one ≥ leg − 1 (it may start in the cell where the last one stopped: the
+    # resumption point lies on its boundary). A guard against a runaway loop only: a ray still pending
+    # when it stops would count as occluded, which the bound rules out
     leg = min(int(opt.shadow_leg_cells), sc.shadow_cells)
-    legs = 1 + -(-(sc.shadow_cells - leg) // max(leg - 1, 1))
-    legs = legs * (jnp.ceil(_WAVY_MAX_TAN_IN * jnp.sqrt(jnp.maximum(sc.n**2 - 1.0, 1e-12))) + 1.0 if sc.wavy else 1.0)
+    cells = sc.shadow_cells * (jnp.ceil(_WAVY_MAX_TAN_IN * jnp.sqrt(jnp.maximum(sc.n**2 - 1.0, 1e-12))) + 1.0 if sc.wavy else 1.0)
+    legs = 1.0 + jnp.ceil(jnp.maximum(cells - leg, 0.0) / max(leg - 1, 1))
     max_passes = jnp.asarray(legs * (-(-total // S)) + 1).astype(jnp.int32)
 
     def cond(c):
