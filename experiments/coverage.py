@@ -16,7 +16,9 @@ lobe, and the lobe depends mostly on σ/τ) that short chains started at the fit
   unit cube (`grid`): it separates the calibration of the statistical model from the mixing of
   the finite MCMC chains.
 
-Writes experiments/output/coverage/summary.json and coverage.png (atomic).
+Writes experiments/output/coverage/summary.json and coverage.png (atomic). Each dataset's row (fit and
+posterior) is cached under `$PAINTJAX_CACHE` by everything it depends on (forward model, data, settings,
+`ROW_VERSION`), so an interrupted study, rerun with the same command, resumes where it stopped.
 
 ``--forward tracer-emulator``: the datasets come from the ray TRACER instead (direct runs, each
 with its own array and ray seed 1000 + i, different from the emulator's common-random-number seed
@@ -101,9 +103,32 @@ def clean_curve(forward_name: str, options: dict, i: int, t) -> dict:
     return {"clean": arrays["clean"], "clean_se": arrays["clean_se"], "seconds": direct.seconds - t0}
 
 
+#: Bump when the fit, the sampler or the row's contents change: part of the key of each dataset's cached row.
+ROW_VERSION = 1
+
+
 def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,
             levels, converge: bool = False) -> dict:
-    """Least squares and the posterior of one synthetic dataset (a task): its row of the summary."""
+    """Least squares and the posterior of one synthetic dataset (a task): its row of the summary, cached on disk
+    (`$PAINTJAX_CACHE`) under everything it depends on, so an interrupted study resumes at the first dataset not done."""
+    import paintjax
+    from paintjax.inverse import MAX_RHAT, MAX_STEPS
+
+    forward = _models(forward_name, options)[0]
+    inputs = {"version": ROW_VERSION, "paintjax": paintjax.__version__, "forward": forward.fingerprint(), "i": int(i),
+              "truth": np.asarray(t, float), "clean": np.asarray(clean["clean"], float), "y": np.asarray(y, float), "free": list(free),
+              "starts": int(starts), "steps": int(steps), "walkers": int(walkers), "seed": int(seed), "levels": [float(lv) for lv in levels],
+              "converge": bool(converge), "stopping_rule": [MAX_RHAT, MAX_STEPS]}
+    def build():  # the row as JSON text (NaN kept as JSON's NaN token, NumPy scalars as Python numbers)
+        row = _analyse(forward_name, options, i, t, clean, y, free, starts, steps, walkers, seed, levels, converge)
+        return {"row": np.asarray(json.dumps(row, default=lambda o: np.asarray(o).tolist()))}
+
+    arrays, _ = cached_arrays("coverage-row", inputs, build)
+    return json.loads(str(arrays["row"]))
+
+
+def _analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,
+             levels, converge: bool) -> dict:
     forward, _, _, extra_fixed = _models(forward_name, options)
     truth = dict(zip(ALL, map(float, t)))
     held = {k: v for k, v in truth.items() if k not in free}

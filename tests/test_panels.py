@@ -167,8 +167,10 @@ def test_cli_batch_on_the_shipped_example(tmp_path, capsys):
 def test_coverage_replicates_run_as_dask_tasks_with_the_serial_numbers(tmp_path):
     """`experiments/coverage.py --workers 2`: the noise-free curves and every dataset's fit and posterior
     are tasks on a local cluster, and the study's numbers are those of the serial run (draws, noise and
-    seeds do not depend on where or in which order the tasks run)."""
+    seeds do not depend on where or in which order the tasks run). Each run has its own cache, where every
+    dataset's row is kept (an interrupted study resumes from them), so the Dask run computes its own."""
     import json
+    import os
     import subprocess
     import sys
     from pathlib import Path
@@ -177,8 +179,10 @@ def test_coverage_replicates_run_as_dask_tasks_with_the_serial_numbers(tmp_path)
     script = Path(__file__).parents[1] / "experiments" / "coverage.py"
     common = ["--datasets", "2", "--steps", "60", "--walkers", "8", "--starts", "2", "--seed", "11", "--free", "shape,scale,sigma"]
     for name, extra in (("serial", []), ("dask", ["--workers", "2"])):
+        env = os.environ | {"PAINTJAX_CACHE": str(tmp_path / f"cache-{name}")}
         subprocess.run([sys.executable, str(script), *common, *extra, "--out", str(tmp_path / name)], check=True, capture_output=True,
-                       timeout=600)
+                       timeout=600, env=env)
+        assert len(list((tmp_path / f"cache-{name}").glob("coverage-row-*.npz"))) == 2
     serial, spread = (json.loads((tmp_path / name / "summary.json").read_text()) for name in ("serial", "dask"))
     assert len(serial["rows"]) == len(spread["rows"]) == 2
     for a, b in zip(serial["rows"], spread["rows"]):
