@@ -308,6 +308,11 @@ def _step_one(sc: _Scene, opt: TracerOptions, ray, key, single):
     return new_ray, tally
 
 
+def _shadow_leg(sc: _Scene, opt: TracerOptions) -> int:
+    """Cells a shadow ray crosses per pass: `opt.shadow_leg_cells`, at most the scene's bound to the top."""
+    return min(int(opt.shadow_leg_cells), sc.shadow_cells)
+
+
 def _shadows(sc: _Scene, opt: TracerOptions, org, sh_dir, sh_lim, sh_val):
     """Trace the pending shadow rays of all lanes (compacted, in passes of a fixed buffer).
 
@@ -326,7 +331,7 @@ def _shadows(sc: _Scene, opt: TracerOptions, org, sh_dir, sh_lim, sh_val):
     # new cells, each later one ≥ leg − 1 (it may start in the cell where the last one stopped: the
     # resumption point lies on its boundary). A guard against a runaway loop only: a ray still pending
     # when it stops would count as occluded, which the bound rules out
-    leg = min(int(opt.shadow_leg_cells), sc.shadow_cells)
+    leg = _shadow_leg(sc, opt)
     cells = sc.shadow_cells * (jnp.ceil(_WAVY_MAX_TAN_IN * jnp.sqrt(jnp.maximum(sc.n**2 - 1.0, 1e-12))) + 1.0 if sc.wavy else 1.0)
     legs = 1.0 + jnp.ceil(jnp.maximum(cells - leg, 0.0) / max(leg - 1, 1))
     max_passes = jnp.asarray(legs * (-(-total // S)) + 1).astype(jnp.int32)

@@ -33,7 +33,7 @@ from ..instrument._single_scatter import check_coat_index, check_platelet_medium
 from ..microstructure._grid import build_grid
 from ..optics._interface import check_waviness
 from ._options import TracerOptions
-from ._path import _key_from, _new_ray, _new_ray_uniforms, _ray_hash, _shadows, _source, _step_one, _uniforms
+from ._path import _key_from, _new_ray, _new_ray_uniforms, _ray_hash, _shadow_leg, _shadows, _source, _step_one, _uniforms
 from ._plain import _step_kinds
 from ._scene import _Scene, build_scene
 from ._trace import _bidirectional_applies, _initial_state, _runner, _seed_state
@@ -289,7 +289,7 @@ def profile_wavefront_step(
         "detectors": m,
         "cells_per_step": sc.max_cells,
         "shadow_cells": sc.shadow_cells,
-        "shadow_leg_cells": min(int(opt.shadow_leg_cells), sc.shadow_cells),
+        "shadow_leg_cells": _shadow_leg(sc, opt),
         "cell_capacity": int(sc.cells.shape[1]),
         "slab_tests_per_lane_step": sc.max_cells * int(sc.cells.shape[1]),
         "brdf_calls_per_lane_step": {"sample": 1, "evaluate": m, "pdf": (1 + m) * sc.mis + (m + 2) * sc.bidir},
