@@ -224,7 +224,9 @@ def test_bidirectional_mis(lambert_scene, single):
     what this checks is that consistency and the combination of the passes. Rough Beckmann platelets
     (σ = 0.1 µm, τ = 0.6 µm: broad, asymmetric sampling densities, no coherent lobe) keep both
     estimators precise. Dropping the detector's 1/|z_D| from the forward weight alone, or the running
-    ratio of the earlier vertices, moved the estimates by 3–9 SE here.
+    ratio of the earlier vertices, moved the estimates by 3–9 SE here. The bidirectional run has
+    120 000 rays: at 60 000 its relative SE at 110° (all orders) had a median of 4.1–4.3 % over six
+    seeds (2.4–12 %: rare heavy paths), at the 5 % the check's teeth require.
     """
     from paintjax.brdf._analytic import BeckmannBRDF
 
@@ -233,8 +235,8 @@ def test_bidirectional_mis(lambert_scene, single):
     geo = ma98_geometry(45.0)
     kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, single_scatter=single)
     fwd = trace(arr, geo, brdf, rays=30_000, seed=13, options=OPT_FWD, **kw)  # own seed: independent of `bid`'s forward pass
-    bid = trace(arr, geo, brdf, rays=60_000, seed=12, options=OPT, **kw)  # 1 + 5 × 0.5 rays per forward ray
-    assert 60_000 <= bid.rays < 61_000
+    bid = trace(arr, geo, brdf, rays=120_000, seed=12, options=OPT, **kw)  # 1 + 5 × 0.5 rays per forward ray
+    assert 120_000 <= bid.rays < 121_000
     z = (bid.reflectance_factor - fwd.reflectance_factor) / np.hypot(bid.reflectance_factor_se, fwd.reflectance_factor_se)
     print("(bidirectional − forward)/SE", np.round(z, 2), "relative SE", np.round(bid.reflectance_factor_se / bid.reflectance_factor, 4))
     assert np.all(np.abs(z) < K)
@@ -250,13 +252,18 @@ def test_reciprocity(lambert_scene, waviness):
     f(ω_i, ω_o); the lobe makes forward next-event estimates spiky, and the reverse pool (OPT, flat
     coat only) tames them. The wavy coat, whose crossings are what it tests, keeps Lambertian
     platelets: through it the forward estimates of the lobe have too heavy a tail for a 2 % SE.
+    Even under the flat coat the lobe's estimates are heavy-tailed (rare paths of large weight move
+    both the estimate and its SE upward), and the batch-means SE is itself noisy: at
+    30 000 rays it ranged 0.9–6.6 % of R over six seeds each of two ray streams, at 60 000 rays
+    0.8–2.9 % over three. Hence 60 000 rays and a relative SE below 3 % (then K SE detects a
+    reciprocity error above ≈ 13 %).
     """
     from paintjax.brdf._analytic import BeckmannBRDF
 
     arr, grid = lambert_scene
     flat = waviness == 0
     brdf = BeckmannBRDF(0.1, 0.6, n_medium=N_COAT) if flat else LambertPlateletBRDF(0.9)
-    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, rays=30_000 if flat else 25_000, waviness_deg=waviness, options=OPT if flat else OPT_FWD)
+    kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, rays=60_000 if flat else 25_000, waviness_deg=waviness, options=OPT if flat else OPT_FWD)
     # A: source (30°, az 180); detectors (60°, az 0) and (45°, az 90) among five
     a = trace(arr, custom_geometry(30.0, [60.0, 45.0, 10.0, 20.0, 70.0], [0.0, 90.0, 0.0, 180.0, 45.0]), brdf, seed=21, **kw)
     b = trace(arr, custom_geometry(60.0, [30.0, 5.0, 15.0, 25.0, 35.0], [180.0] * 5, illumination_azimuth_deg=0.0), brdf, seed=22, **kw)
@@ -265,7 +272,7 @@ def test_reciprocity(lambert_scene, waviness):
                                (a.reflectance_factor[1], a.reflectance_factor_se[1], c.reflectance_factor[0], c.reflectance_factor_se[0])):
         print("reciprocity:", fwd, bwd, "deviation / SE", (fwd - bwd) / np.hypot(fse, bse), "rel. SE", fse / fwd)
         assert abs(fwd - bwd) < K * np.hypot(fse, bse), (fwd, fse, bwd, bse)
-        assert fse < 0.02 * fwd
+        assert fse < (0.03 if flat else 0.02) * fwd
 
 
 def test_deterministic_and_validated(empty_scene):
@@ -470,3 +477,24 @@ def test_traversal_matches_brute_force(thickness):
     x_hit = origins[hit] + tb[hit, None] * dirs[hit]
     reach = np.asarray(arr.widths, float).reshape(-1)[jb[hit]] * np.sqrt(2) / 2 + thickness
     assert np.all(np.linalg.norm(x_hit - centre, axis=1) <= reach + 1e-9)
+
+
+def test_wave_table_lookup_agrees_with_the_basis_sums(lambert_scene):
+    """A tabulated (wave-type) platelet BRDF traced with its radial lobes looked up in textures (the
+    default fast path) and summed over the basis (the reference, `with_radial_texture(False)`), five
+    MA98 angles, bidirectional MIS. Same seed: the same paths, so the L* differ only by the lookup's
+    ≤ 3 × 10⁻⁴ relative error in the BRDF (< 0.05 combined SE). Another seed for the reference: the
+    two estimates agree within 3 combined SE (the statistical equivalence the fast path must keep)."""
+    from paintjax import kirchhoff_lobes, table_from_lobes
+
+    arr, grid = lambert_scene
+    table = table_from_lobes(kirchhoff_lobes(0.051, 0.64, n_medium=N_COAT), n_medium=N_COAT)  # the paint regime
+    geo = ma98_geometry(45.0)
+    run = lambda brdf, seed: trace(arr, geo, brdf, grid=grid, n=N_COAT, rays=20_000, seed=seed, options=OPT)  # noqa: E731
+    fast, ref, ref2 = run(table, 3), run(table.with_radial_texture(False), 3), run(table.with_radial_texture(False), 4)
+    se = np.hypot(fast.L_star_se, ref.L_star_se)
+    print("lookup − sums, same seed / combined SE", np.round((fast.L_star - ref.L_star) / se, 4),
+          "another seed", np.round((fast.L_star - ref2.L_star) / np.hypot(fast.L_star_se, ref2.L_star_se), 2))
+    assert np.all(np.isfinite(fast.L_star)) and np.all(se > 0)
+    assert np.all(np.abs(fast.L_star - ref.L_star) < 0.05 * se)
+    assert np.all(np.abs(fast.L_star - ref2.L_star) < 3.0 * np.hypot(fast.L_star_se, ref2.L_star_se))

@@ -172,6 +172,11 @@ class AbstractLobeBRDF(AbstractPlateletBRDF):
     def coherent_share(self, cos_i: Float[Array, "..."]) -> Float[Array, "..."]:
         """Probability with which `sample` draws the coherent part (≈ its share of the albedo)."""
 
+    def proposal_density(self, cos_i: Float[Array, "..."], rho2: Float[Array, "..."]) -> Float[Array, "..."]:
+        """The sampling mixture Σ p_k e^{−ρ²/w_k²} / (π w_k²) of `proposal` at squared offset ρ² from specular."""
+        widths, probs = self.proposal(cos_i)
+        return jnp.sum(probs * jnp.exp(-rho2[..., None] / widths**2) / (np.pi * widths**2), -1)
+
     # ------------------------------------------------------------------ coherent lobe
     def _coherent_lobe(self, wi, wo):
         """Narrow Gaussian lobe carrying R_coh inside the disk (reciprocal: uses mean cosine)."""
@@ -196,8 +201,7 @@ class AbstractLobeBRDF(AbstractPlateletBRDF):
         """Sampling density per unit β-area of the continuous branches (incl. the coherent lobe)."""
         cos_i = wi[..., 2]
         rho2 = jnp.sum((wi[..., :2] + wo[..., :2]) ** 2, -1)
-        widths, probs = self.proposal(cos_i)
-        gauss = jnp.sum(probs * jnp.exp(-rho2[..., None] / widths**2) / (np.pi * widths**2), -1)
+        gauss = self.proposal_density(cos_i, rho2)
         q_inc = UNIFORM_FRACTION / np.pi + (1.0 - UNIFORM_FRACTION) * gauss
         pc = self.coherent_share(cos_i)
         q = (1.0 - pc) * q_inc
@@ -215,17 +219,20 @@ class AbstractLobeBRDF(AbstractPlateletBRDF):
         wi, sign = flip_to_upper(wi)
         batch = wi.shape[:-1]
         cos_i = wi[..., 2]
-        k_branch, k_comp, k_r, k_phi = jax.random.split(key, 4)
         pc = self.coherent_share(cos_i)
-        u = jax.random.uniform(k_branch, batch)
+        dt = wi.dtype
+        # one draw of the branch, the mixture component, the radius and the azimuth uniforms
+        u, u_comp, u_r, u_phi = jnp.moveaxis(jax.random.uniform(key, batch + (4,), dt), -1, 0)
         is_coh = u < pc
         u_inc = (u - pc) / jnp.maximum(1.0 - pc, 1e-300)
         is_unif = (~is_coh) & (u_inc < UNIFORM_FRACTION)
         widths, probs = self.proposal(cos_i)
-        comp = jax.random.categorical(k_comp, jnp.log(jnp.maximum(probs, 1e-300)), axis=-1, shape=batch)
+        # the component by inverting the mixture's cumulative weights (not a Gumbel draw per component)
+        cdf = jnp.cumsum(probs, -1)
+        comp = jnp.sum(cdf[..., :-1] < ((1.0 - u_comp) * cdf[..., -1])[..., None], -1)  # (1 − u) in (0, 1]
         w = jnp.take_along_axis(widths, comp[..., None], axis=-1)[..., 0]
-        v = jax.random.uniform(k_r, batch, minval=1e-300, maxval=1.0)
-        phi = jax.random.uniform(k_phi, batch, maxval=2.0 * np.pi)
+        v = 1.0 - u_r  # in (0, 1]
+        phi = 2.0 * np.pi * u_phi
         rho = jnp.where(is_coh, self.coherent_width * jnp.sqrt(-2.0 * jnp.log(v)), w * jnp.sqrt(-jnp.log(v)))
         e = jnp.stack([jnp.cos(phi), jnp.sin(phi)], -1)
         beta = jnp.where(is_unif[..., None], jnp.sqrt(v)[..., None] * e, -wi[..., :2] + rho[..., None] * e)

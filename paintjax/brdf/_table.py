@@ -138,6 +138,7 @@ from ._lobe_basis import (
     normalisation_tensor,
     symmetric_scale,
 )
+from ._radial_texture import log_radial_texture, radial_lookup
 
 #: Bumped when the table construction changes (part of the cache key).
 TABLE_VERSION = 12  # 11: the lobe fits' ridge is relative to each basis function; 12: the q_z continuation uses the known (kσ)²
@@ -272,7 +273,10 @@ class TabulatedBRDF(AbstractLobeBRDF):
     coef (J, K) lobe coefficients C_j, proposal_coef (J, K) unit-mass sampling lobes, scale (J,)
     symmetric normalisation a, coherent_reflectance_table, incoherent_reflectance_table, absorbed,
     outside_fraction (J,); static n_medium, the binder index the lobes were computed in (None:
-    not recorded, so the tracer cannot check it against the coat index).
+    not recorded, so the tracer cannot check it against the coat index). Derived in the
+    constructor: lobe_texture, proposal_texture (J, R) and proposal_mass (J,), the rows' radial
+    sums on a fine grid (`_radial_texture`, ≤ 2 × 10⁻⁴ from the sums), which `evaluate`, `pdf` and
+    `sample` look up; static radial_texture=False sums over the basis instead (the reference).
     """
 
     incidence_deg: Float[Array, " J"]
@@ -284,11 +288,16 @@ class TabulatedBRDF(AbstractLobeBRDF):
     incoherent_reflectance_table: Float[Array, " J"]
     absorbed: Float[Array, " J"]
     outside_fraction: Float[Array, " J"]
+    lobe_texture: Float[Array, "J R"]
+    proposal_texture: Float[Array, "J R"]
+    proposal_mass: Float[Array, " J"]
     coherent: str = eqx.field(static=True)
     coherent_width: float = eqx.field(static=True)
     n_medium: float | None = eqx.field(static=True)
+    radial_texture: bool = eqx.field(static=True)
 
-    def __init__(self, incidence_deg, widths, coef, proposal_coef, scale, coherent_reflectance_table, incoherent_reflectance_table, absorbed, outside_fraction, *, coherent="lobe", coherent_width=0.0083, n_medium=None):
+    def __init__(self, incidence_deg, widths, coef, proposal_coef, scale, coherent_reflectance_table, incoherent_reflectance_table, absorbed, outside_fraction, *, coherent="lobe", coherent_width=0.0083, n_medium=None,
+                 radial_texture=True):
         check_coherent(coherent)
         check_positive("coherent_width", coherent_width, 1.0)
         if n_medium is not None:
@@ -298,7 +307,11 @@ class TabulatedBRDF(AbstractLobeBRDF):
         self.proposal_coef = proposal_coef
         self.coherent_reflectance_table, self.incoherent_reflectance_table = coherent_reflectance_table, incoherent_reflectance_table
         self.absorbed, self.outside_fraction = absorbed, outside_fraction
-        self.coherent, self.coherent_width = coherent, float(coherent_width)
+        self.coherent, self.coherent_width, self.radial_texture = coherent, float(coherent_width), bool(radial_texture)
+        # the rows' radial lobes and sampling densities on a fine grid (`_radial_texture`), looked up by the tracer
+        self.lobe_texture = log_radial_texture(coef, widths)
+        self.proposal_texture = log_radial_texture(proposal_coef, widths)
+        self.proposal_mass = jnp.sum(jnp.asarray(proposal_coef) * np.pi * jnp.asarray(widths) ** 2, -1)
 
     @classmethod
     def from_arrays(cls, arrays: dict, *, coherent: str = "lobe", coherent_width: float = 0.0083, n_medium: float | None = None) -> "TabulatedBRDF":
@@ -307,6 +320,14 @@ class TabulatedBRDF(AbstractLobeBRDF):
         return cls(
             f("incidence_deg"), f("widths"), f("coef"), f("proposal_coef"), f("scale"), f("coherent_reflectance"), f("incoherent_reflectance"),
             f("absorbed"), f("outside_fraction"), coherent=coherent, coherent_width=coherent_width, n_medium=n_medium,
+        )
+
+    def with_radial_texture(self, enabled: bool) -> "TabulatedBRDF":
+        """The same table, its radial lobes looked up in the textures (True) or summed over the basis (False)."""
+        return TabulatedBRDF(
+            self.incidence_deg, self.widths, self.coef, self.proposal_coef, self.scale, self.coherent_reflectance_table,
+            self.incoherent_reflectance_table, self.absorbed, self.outside_fraction, coherent=self.coherent,
+            coherent_width=self.coherent_width, n_medium=self.n_medium, radial_texture=enabled,
         )
 
     @property
@@ -323,8 +344,12 @@ class TabulatedBRDF(AbstractLobeBRDF):
 
     def lobe(self, mu_bar, rho2):
         """G(ρ, 2μ̄) L(ρ; μ̄): the radial lobe times the geometric factor (f_inc = a(μ_i) a(μ_o) G L / (μ_i μ_o))."""
-        c = self._at(self.coef, mu_bar)
-        return jnp.sum(c * jnp.exp(-rho2[..., None] / self.widths**2), -1) * geometric_factor(rho2, 2.0 * mu_bar)
+        j0, t = _interp_index(jnp.asarray(mu_bar), self.mu_nodes)
+        if self.radial_texture:
+            L = radial_lookup(self.lobe_texture, j0, t, rho2)
+        else:
+            L = jnp.sum(_interp_rows(self.coef, j0, t) * jnp.exp(-rho2[..., None] / self.widths**2), -1)
+        return L * geometric_factor(rho2, 2.0 * mu_bar)
 
     def incoherent(self, wi, wo):
         mi, mo = wi[..., 2], wo[..., 2]
@@ -344,6 +369,13 @@ class TabulatedBRDF(AbstractLobeBRDF):
         probs = c * np.pi * self.widths**2
         probs = probs / jnp.sum(probs, -1, keepdims=True)
         return jnp.broadcast_to(self.widths, probs.shape), probs
+
+    def proposal_density(self, cos_i, rho2):
+        if not self.radial_texture:
+            return super().proposal_density(cos_i, rho2)
+        j0, t = _interp_index(jnp.asarray(cos_i), self.mu_nodes)
+        mass = _interp_rows(self.proposal_mass, j0, t)
+        return radial_lookup(self.proposal_texture, j0, t, rho2) / jnp.maximum(mass, jnp.finfo(mass.dtype).tiny)
 
     def coherent_share(self, cos_i):
         rc, ri = self.coherent_reflectance(cos_i), self.incoherent_albedo(cos_i)

@@ -67,8 +67,9 @@ class TracerOptions(eqx.Module):
             reciprocity: of the platelet BRDF (all of paintjax's are) and of the scene, which
             overlapping boxes break (a ray starting inside a box passes through it, one arriving
             from outside does not), so arrays should be overlap-free (`array_statistics`).
-        float64: trace in float64 when x64 is enabled (default float32 geometry, which is ample
-            for µm-scale boxes in a sub-mm tile and twice as fast; tallies are float64 under x64).
+        float64: trace in float64 when x64 is enabled (default float32 geometry and platelet BRDF
+            evaluations, which are ample for µm-scale boxes in a sub-mm tile and twice as fast;
+            tallies are float64 under x64).
 
     `batches`, `float64`, `mis` and `reverse_share` are read on the host only (scene flags, dtypes,
     summaries): the compiled kernel is cached without them (`_kernel_options`), so it must not read them.

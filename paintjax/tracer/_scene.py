@@ -236,6 +236,12 @@ def _face_normal(sc: _Scene, j, shift, x_hit, d):
     return -jnp.sign(da) * axis, is_u | is_v
 
 
+def _in_dtype(brdf: AbstractPlateletBRDF, dtype) -> AbstractPlateletBRDF:
+    """The BRDF with its floating-point arrays in the tracer's dtype (its evaluations then run in it)."""
+    cast = lambda x: x.astype(dtype) if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jnp.floating) else x  # noqa: E731
+    return jax.tree_util.tree_map(cast, brdf)
+
+
 # ----------------------------------------------------------------------------------------------
 def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, n: float, clearcoat_thickness: float,
                 primer_albedo: float, waviness_deg: float = 0.0, dtype=jnp.float32, min_cells: int = 2, mis: bool = True,
@@ -287,7 +293,7 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
         illum_cos_alpha=arr(np.cos(np.deg2rad(illum_alpha))),
         det_air=arr(detectors),
         det_cos_alpha=arr(np.cos(np.deg2rad(det_alpha))),
-        brdf=brdf,
+        brdf=_in_dtype(brdf, dtype),
         slope_sd=arr(slope_sd(waviness_deg)),
         log_reverse_share=jnp.full((detectors.shape[0],), log_share, dtype),
         illum_in_z=arr(np.abs(src_in[:, 2])),

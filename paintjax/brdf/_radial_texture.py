@@ -1,0 +1,51 @@
+"""Radial lobes of a table sampled once on a fine grid, so that the tracer looks them up instead of summing.
+
+A table's lobe at tabulated incidence j is a sum over the K basis widths, L_j(ρ) = Σ_k C_jk e^{−ρ²/w_k²}
+(and its sampling density likewise). Summed at every evaluation, the K exponentials are most of a
+wavefront step's time. Between tabulated incidences the coefficients are linear in μ, so the lobe is
+the same linear blend of two rows L_j(ρ): only the rows need a grid. Each row is stored as log L_j on
+RADIAL_NODES points uniform in s = ρ^{1/2} over 0 ≤ ρ ≤ 2 (the largest |β_i + β_o|), which puts
+the points closest near the specular point where the narrowest widths live; log L of a Gaussian
+is smooth in s everywhere, so a linear interpolation there is accurate to about 10⁻⁵ relative
+(`tests/test_brdf_table.py` checks it against the sums).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+#: Grid points per row of a radial texture.
+RADIAL_NODES = 1024
+#: Largest offset ρ = |β_i + β_o| of two upward directions.
+RHO_MAX = 2.0
+
+
+def _s_nodes(dtype) -> Float[Array, " R"]:
+    return jnp.linspace(0.0, np.sqrt(RHO_MAX), RADIAL_NODES, dtype=dtype)
+
+
+def log_radial_texture(coef: Float[Array, "J K"], widths: Float[Array, " K"]) -> Float[Array, "J R"]:
+    """log Σ_k C_jk e^{−ρ²/w_k²} at the texture's nodes (floored at the dtype's smallest normal number)."""
+    coef = jnp.asarray(coef)
+    rho2 = _s_nodes(coef.dtype) ** 4
+    L = jnp.einsum("jk,rk->jr", coef, jnp.exp(-rho2[:, None] / jnp.asarray(widths, coef.dtype) ** 2))
+    return jnp.log(jnp.maximum(L, jnp.finfo(coef.dtype).tiny))
+
+
+def radial_lookup(texture: Float[Array, "J R"], j0, t, rho2) -> Float[Array, "..."]:
+    """(1 − t) L_{j0}(ρ) + t L_{j0+1}(ρ) from a `log_radial_texture`, for ρ² = rho2 (broadcast with j0, t)."""
+    R = texture.shape[-1]
+    pos = jnp.sqrt(jnp.sqrt(jnp.clip(rho2, 0.0, RHO_MAX**2))) * float((R - 1) / np.sqrt(RHO_MAX))
+    i = jnp.clip(jnp.floor(pos).astype(jnp.int32), 0, R - 2)
+    f = (pos - i).astype(texture.dtype)
+    flat = texture.reshape(-1)
+
+    def row(j):
+        base = j * R + i
+        return jnp.exp((1.0 - f) * flat[base] + f * flat[base + 1])
+
+    if texture.shape[0] == 1:
+        return row(jnp.zeros_like(j0))
+    return (1.0 - t) * row(j0) + t * row(j0 + 1)
