@@ -280,3 +280,23 @@ def test_radial_texture_matches_the_basis_sums(dtype):
         assert big.sum() > 0.5 * b.size
         rel = np.abs(a[big] / b[big] - 1.0)
         assert rel.max() < 3e-4, (name, rel.max())  # measured 1–5 × 10⁻⁵ here, 2 × 10⁻⁴ on Silver #1's wave table
+
+
+@pytest.mark.parametrize("incidence_deg", [np.r_[np.arange(0.0, 88.0, 3.0), 89.0], np.array([0.0, 0.5, 1.0, 10.0, 60.0, 89.0]), np.array([40.0])])
+def test_incidence_lookup_matches_the_binary_search(incidence_deg):
+    """The tables' incidence lookup (bins in cosθ, one comparison) finds the same rows and weights as
+    the binary search, for the default nodes, nodes closer than a default bin (more bins) and one
+    node, at, between and beyond the nodes."""
+    from paintjax.brdf._lobe_basis import _interp_index
+    from paintjax.brdf._radial_texture import MIN_MU_BINS, incidence_lookup, lookup_index
+
+    nodes = jnp.cos(jnp.deg2rad(jnp.asarray(incidence_deg)))
+    lookup = incidence_lookup(nodes)
+    assert lookup.shape[0] >= MIN_MU_BINS and (lookup.shape[0] > MIN_MU_BINS) == (incidence_deg[:2].tolist() == [0.0, 0.5])
+    mu = jnp.concatenate([jnp.linspace(-0.1, 1.1, 100_001), nodes, nodes + 1e-12, nodes - 1e-12])
+    (j0, t), (k0, s) = lookup_index(mu, nodes, lookup), _interp_index(mu, nodes)
+    value = lambda j, w: (1 - w) * incidence_deg[j] + w * incidence_deg[np.minimum(j + 1, len(incidence_deg) - 1)]  # noqa: E731
+    np.testing.assert_allclose(value(np.asarray(j0), np.asarray(t)), value(np.asarray(k0), np.asarray(s)), rtol=0, atol=1e-9)
+    assert np.all((np.asarray(t) >= 0) & (np.asarray(t) <= 1))
+    with pytest.raises(ValueError, match="incidence_deg"):
+        incidence_lookup(jnp.cos(jnp.deg2rad(jnp.asarray([0.0, 10.0, 10.0]))))

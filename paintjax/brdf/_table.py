@@ -97,7 +97,7 @@ import warnings
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Float, Int
 from scipy.special import erf
 
 from .._cache import cached_arrays
@@ -138,7 +138,7 @@ from ._lobe_basis import (
     normalisation_tensor,
     symmetric_scale,
 )
-from ._radial_texture import log_radial_texture, radial_lookup
+from ._radial_texture import incidence_lookup, log_radial_texture, lookup_index, radial_lookup
 
 #: Bumped when the table construction changes (part of the cache key).
 TABLE_VERSION = 12  # 11: the lobe fits' ridge is relative to each basis function; 12: the q_z continuation uses the known (kσ)²
@@ -276,7 +276,9 @@ class TabulatedBRDF(AbstractLobeBRDF):
     not recorded, so the tracer cannot check it against the coat index). Derived in the
     constructor: lobe_texture, proposal_texture (J, R) and proposal_mass (J,), the rows' radial
     sums on a fine grid (`_radial_texture`, ≤ 2 × 10⁻⁴ from the sums), which `evaluate`, `pdf` and
-    `sample` look up; static radial_texture=False sums over the basis instead (the reference).
+    `sample` look up, and incidence_lookup (B,), bins in cosθ that find the two rows about an
+    incidence; static radial_texture=False sums over the basis and searches the rows instead (the
+    reference).
     """
 
     incidence_deg: Float[Array, " J"]
@@ -291,6 +293,7 @@ class TabulatedBRDF(AbstractLobeBRDF):
     lobe_texture: Float[Array, "J R"]
     proposal_texture: Float[Array, "J R"]
     proposal_mass: Float[Array, " J"]
+    incidence_lookup: Int[Array, " B"]
     coherent: str = eqx.field(static=True)
     coherent_width: float = eqx.field(static=True)
     n_medium: float | None = eqx.field(static=True)
@@ -312,6 +315,7 @@ class TabulatedBRDF(AbstractLobeBRDF):
         self.lobe_texture = log_radial_texture(coef, widths)
         self.proposal_texture = log_radial_texture(proposal_coef, widths)
         self.proposal_mass = jnp.sum(jnp.asarray(proposal_coef) * np.pi * jnp.asarray(widths) ** 2, -1)
+        self.incidence_lookup = incidence_lookup(jnp.cos(jnp.deg2rad(jnp.asarray(incidence_deg))))
 
     @classmethod
     def from_arrays(cls, arrays: dict, *, coherent: str = "lobe", coherent_width: float = 0.0083, n_medium: float | None = None) -> "TabulatedBRDF":
@@ -338,13 +342,18 @@ class TabulatedBRDF(AbstractLobeBRDF):
     def mu_nodes(self):
         return jnp.cos(jnp.deg2rad(self.incidence_deg))
 
+    def _index(self, mu):
+        """(j0, t): μ between tabulated incidences j0 and j0 + 1 (the lookup, or a binary search for the reference)."""
+        if self.radial_texture and self.incidence_lookup.shape[0] > 0:
+            return lookup_index(mu, self.mu_nodes, self.incidence_lookup)
+        return _interp_index(jnp.asarray(mu), self.mu_nodes)
+
     def _at(self, values, mu):
-        j0, t = _interp_index(jnp.asarray(mu), self.mu_nodes)
-        return _interp_rows(values, j0, t)
+        return _interp_rows(values, *self._index(mu))
 
     def lobe(self, mu_bar, rho2):
         """G(ρ, 2μ̄) L(ρ; μ̄): the radial lobe times the geometric factor (f_inc = a(μ_i) a(μ_o) G L / (μ_i μ_o))."""
-        j0, t = _interp_index(jnp.asarray(mu_bar), self.mu_nodes)
+        j0, t = self._index(mu_bar)
         if self.radial_texture:
             L = radial_lookup(self.lobe_texture, j0, t, rho2)
         else:
@@ -373,7 +382,7 @@ class TabulatedBRDF(AbstractLobeBRDF):
     def proposal_density(self, cos_i, rho2):
         if not self.radial_texture:
             return super().proposal_density(cos_i, rho2)
-        j0, t = _interp_index(jnp.asarray(cos_i), self.mu_nodes)
+        j0, t = self._index(cos_i)
         mass = _interp_rows(self.proposal_mass, j0, t)
         return radial_lookup(self.proposal_texture, j0, t, rho2) / jnp.maximum(mass, jnp.finfo(mass.dtype).tiny)
 

@@ -62,7 +62,11 @@ from collections.abc import Sequence
 import numpy as np
 
 #: Bump when the meaning of a tracer evaluation changes (physics, settings semantics): emulator
-#: cache keys depend on it (the BRDF table version enters the key separately).
+#: cache keys depend on it (the BRDF table version enters the key separately). A change of the
+#: random stream alone, which leaves every estimate's expectation as it was, keeps the version:
+#: cached and shipped evaluations stay valid estimates of the same quantities, within their
+#: standard errors, though no longer reproduced bit for bit (so the lobe samplers' one-uniform
+#: component draw and the tables' radial textures, ≤ 2 × 10⁻⁴ relative, kept version 4).
 TRACER_FORWARD_VERSION = 4  # 4: the BRDF grid's `at` aligns lobe widths between nodes
 
 #: Parameters the tracer forward map consumes, in column order.
@@ -143,7 +147,7 @@ class TracerSettings:
         return np.geomspace(lo, hi, int(n)) if int(n) > 1 else np.array([float(lo)])
 
     def identity(self) -> str:
-        """Text that changes whenever a tracer evaluation would (for cache keys)."""
+        """Text that changes whenever what a tracer evaluation estimates would (for cache keys)."""
         from ..brdf._table import TABLE_VERSION
 
         d = dataclasses.asdict(self) | {"version": TRACER_FORWARD_VERSION, "table_version": TABLE_VERSION}
