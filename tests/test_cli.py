@@ -246,3 +246,28 @@ def test_closed_pipe_is_no_traceback():
     err = proc.stderr.read()
     assert proc.wait(timeout=300) == 1, err
     assert "Traceback" not in err and "BrokenPipe" not in err
+
+
+def test_demo_reads_each_panels_posterior_summary_from_the_cache(tmp_path, monkeypatch):
+    """`paintjax demo`'s inference: each panel's summary is sampled once and read from the cache after,
+    and a different seed (or any other input of its key) samples again. The sampling is replaced by a
+    stand-in that counts its calls (the real one takes a minute per panel)."""
+    from paintjax.cli import _demo
+
+    monkeypatch.setenv("PAINTJAX_CACHE", str(tmp_path / "cache"))
+    calls = []
+
+    def stand_in(forward, reading, s, runs, seed):
+        calls.append((s.name, seed))
+        return {"measured": list(s.L_star), "estimates": {}, "L_star_q50": np.asarray(s.L_star) + seed, "predictive_p_value": 0.5,
+                "verdict": "agree", "at_edge": {}, "converged": {label: True for label in runs}, "seconds": 1.0}
+
+    monkeypatch.setattr(_demo, "_panel_summary", stand_in)
+    first = _demo.inference(seed=0, progress=False)
+    again = _demo.inference(seed=0, progress=False)
+    other = _demo.inference(seed=1, progress=False)
+    assert calls == [("silver1", 0), ("silver2", 0), ("silver1", 1), ("silver2", 1)]
+    for name in ("silver1", "silver2"):
+        assert not first["panels"][name]["cached"] and again["panels"][name]["cached"] and not other["panels"][name]["cached"]
+        assert again["panels"][name] | {"cached": False} == first["panels"][name]
+        np.testing.assert_allclose(other["panels"][name]["L_star_q50"], np.asarray(first["panels"][name]["L_star_q50"]) + 1)

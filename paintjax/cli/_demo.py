@@ -5,6 +5,10 @@ platelets through the same tracer and the analytic single-scatter model. Then, f
 samples, the inverse: posteriors through the shipped tracer emulator with the published inputs as
 data (`paintjax.inverse.panel_posteriors`), estimates with 90 % intervals, and the consistency
 verdict (posterior-predictive p-value with no model discrepancy). Written to `<out>/inference.json`.
+Each panel's summary is cached by everything it depends on (the forward model's and the reading
+model's content, the sample's data, the runs, the seed, the stopping rule, the package version), so
+a second `make demo` reads it instead of sampling again: with the same seed the chains, and so the
+numbers, would be the same.
 """
 
 from __future__ import annotations
@@ -31,32 +35,64 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
+#: Bumped when what a cached panel summary holds or how it is computed changes (part of its cache key).
+SUMMARY_VERSION = 1
+#: The modules whose source enters the summaries' cache key: the posterior, its likelihoods and sampler, this command.
+_POSTERIOR_CODE = ("cli/_demo.py", "inverse/_verdict.py", "inverse/_posterior.py", "inverse/_chain.py", "inverse/_measured_inputs.py",
+                   "inverse/_profilometer.py", "inverse/_tilt_measurement.py", "inverse/_error_model.py", "inverse/_observations.py",
+                   "inverse/_parameters.py", "inverse/_forward.py", "inverse/_emulator.py")
+
+
+def _panel_summary(forward, reading, s, runs, seed: int) -> dict:
+    """One panel's posteriors (`panel_posteriors`) reduced to what the demo shows (JSON-ready)."""
+    from ..inverse._verdict import panel_posteriors
+
+    t0 = time.perf_counter()
+    r = panel_posteriors(forward, s, reading, runs=runs, seed=seed)
+    post, strict = r["L* and inputs"]["posterior"].to_dict(), r["L* and inputs, no discrepancy"]
+    return {
+        "measured": list(s.L_star),
+        "estimates": {k: {"mean": post["mean"][k], "q05": post["q05"][k], "q95": post["q95"][k]} for k in post["mean"] if k in _SHOWN},
+        "L_star_q50": r["L* and inputs"]["check"]["L_star_q50"],
+        "predictive_p_value": strict["check"]["p_value"],
+        "verdict": r["verdict"],
+        "at_edge": post["at_edge"],
+        "converged": {label: bool(r[label]["posterior"].converged) for label in runs},
+        "seconds": time.perf_counter() - t0,
+    }
+
+
 def inference(*, seed: int = 0, progress: bool = True) -> dict:
-    """Both panels' posteriors with the published inputs as data (δ free, then δ = 0) and verdicts."""
+    """Both panels' posteriors with the published inputs as data (δ free, then δ = 0) and verdicts
+    (each panel's summary from the cache when one matches; "cached" says which)."""
+    import hashlib
+    import json
+
+    import jax
+
+    from .. import __version__
+    from .._cache import cached_arrays
+    from .._pipeline import _source_digest
     from .._samples import load_sample
+    from ..inverse._chain import MAX_RHAT, MAX_STEPS
     from ..inverse._profilometer import build_reading_model
     from ..inverse._registry import make_forward
-    from ..inverse._verdict import DISAGREE_P, panel_posteriors
+    from ..inverse._verdict import DISAGREE_P
 
     forward = make_forward("tracer-emulator-wide", ("shape", "scale", "sigma", "tau"), {}, progress=progress)
     reading = build_reading_model(progress=progress)
+    digest = hashlib.sha256()
+    for leaf in jax.tree_util.tree_leaves(reading):
+        digest.update(np.ascontiguousarray(np.asarray(leaf, float)).tobytes())
+    code = _source_digest(*_POSTERIOR_CODE)  # an edit to the posterior's code invalidates the summaries
     out = {"forward": "tracer-emulator-wide", "disagree_below_p": DISAGREE_P, "panels": {}}
     runs = ("L* and inputs", "L* and inputs, no discrepancy")
     for name in ("silver1", "silver2"):
         s = load_sample(name)
-        t0 = time.perf_counter()
-        r = panel_posteriors(forward, s, reading, runs=runs, seed=seed)
-        post, strict = r["L* and inputs"]["posterior"].to_dict(), r["L* and inputs, no discrepancy"]
-        out["panels"][s.name] = {
-            "measured": list(s.L_star),
-            "estimates": {k: {"mean": post["mean"][k], "q05": post["q05"][k], "q95": post["q95"][k]} for k in post["mean"] if k in _SHOWN},
-            "L_star_q50": r["L* and inputs"]["check"]["L_star_q50"],
-            "predictive_p_value": strict["check"]["p_value"],
-            "verdict": r["verdict"],
-            "at_edge": post["at_edge"],
-            "converged": {label: bool(r[label]["posterior"].converged) for label in runs},
-            "seconds": time.perf_counter() - t0,
-        }
+        inputs = {"version": SUMMARY_VERSION, "paintjax": __version__, "code": code, "forward": forward.fingerprint(), "reading": digest.hexdigest(),
+                  "sample": repr(s), "runs": list(runs), "seed": int(seed), "max_rhat": MAX_RHAT, "max_steps": MAX_STEPS, "disagree_p": DISAGREE_P}
+        arrays, hit = cached_arrays("demo-panel", inputs, lambda: {"summary": np.asarray(json.dumps(_panel_summary(forward, reading, s, runs, seed), default=lambda o: np.asarray(o).tolist()))})
+        out["panels"][s.name] = json.loads(str(arrays["summary"])) | {"cached": bool(hit)}
     return out
 
 
@@ -85,6 +121,7 @@ def run(args) -> int:
             print(f"    WARNING: the posterior of {_SHOWN.get(k, (k,))[0]} piles against the {side} edge of the prior box")
         verdict = ("the inputs and the L* DISAGREE within the stated errors" if p["verdict"] == "disagree"
                    else "the inputs and the L* agree within the stated errors")
-        print(f"    with no model discrepancy: predictive p = {p['predictive_p_value']:.2g}: {verdict} ({p['seconds']:.0f} s)")
+        took = f"from the cache; sampled in {p['seconds']:.0f} s" if p["cached"] else f"{p['seconds']:.0f} s"
+        print(f"    with no model discrepancy: predictive p = {p['predictive_p_value']:.2g}: {verdict} ({took})")
     print(f"  data: {args.out}/inference.json; docs/input_measurement.md explains the runs")
     return status
