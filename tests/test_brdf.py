@@ -117,6 +117,34 @@ def test_he_torrance_limits():
     assert float(ht.incoherent(z, z)) == pytest.approx(float(bk.incoherent(z, z)), rel=1e-9)
 
 
+
+_COHERENT_EDGE_OPEN = pytest.mark.xfail(strict=True, reason="open: the coherent lobe's integral misses R_coh near grazing "
+                                        "(+2.4 % at 80°, −9 % at 85°: the lobe meets the disk edge)")
+
+
+@pytest.mark.parametrize("name", ["beckmann", "table"])
+@pytest.mark.parametrize("theta_i", [0.0, 40.0, 60.0, 75.0, pytest.param(80.0, marks=_COHERENT_EDGE_OPEN), pytest.param(85.0, marks=_COHERENT_EDGE_OPEN)])
+def test_coherent_lobe_carries_the_coherent_reflectance(name, theta_i):
+    """The narrow coherent lobe included in `evaluate` integrates (fine polar quadrature about the
+    specular point, clipped at the disk) to the `coherent_reflectance` that `albedo` states, within
+    0.3 %. Measured: ≤ 0.22 % up to 75°; at 80° +2.4 % and at 85° −9 % for both the Beckmann and the
+    tabulated BRDF. The lobe's value uses R_coh at the pair's mean cosine (for reciprocity) and a
+    straight-edge normalisation of the disk's cut; near grazing, within a few lobe widths of the
+    edge, neither holds (open)."""
+    brdf = brdfs()[name]
+    s = brdf.coherent_width
+    wi = direction(theta_i)
+    r = np.linspace(0, 8 * s, 2000)[1:]
+    ph = (np.arange(512) + 0.5) * 2 * np.pi / 512
+    bx, by = -wi[0] + r[:, None] * np.cos(ph), r[:, None] * np.sin(ph)
+    inside = bx**2 + by**2 < 1.0
+    wo = np.stack([bx, by, np.sqrt(np.clip(1 - bx**2 - by**2, 1e-12, None))], -1)
+    coh = np.asarray(call(brdf, "_coherent_lobe", jnp.asarray(wi), jnp.asarray(wo))) * inside
+    integral = np.sum(coh * r[:, None]) * (r[1] - r[0]) * 2 * np.pi / 512
+    stated = float(call(brdf, "coherent_reflectance", jnp.asarray(wi[2])))
+    assert stated > 0.01
+    assert abs(integral / stated - 1.0) < 3e-3, (integral, stated)
+
 @pytest.mark.parametrize(
     "name, theta_i",
     [("beckmann", 10.0), ("beckmann_delta", 60.0), ("he_torrance", 60.0), ("he_torrance_rough_air", 10.0), ("table", 10.0), ("table", 60.0), ("table_delta", 40.0)],
