@@ -50,7 +50,16 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 from scipy.stats import binom  # noqa: E402
 
-from paintjax import AnalyticForward, atomic_savefig, atomic_write_json, cached_arrays, fit_least_squares, make_spec, sample_posterior  # noqa: E402
+from paintjax import (  # noqa: E402
+    AnalyticForward,
+    atomic_savefig,
+    atomic_write_json,
+    cached_arrays,
+    cached_json,
+    fit_least_squares,
+    make_spec,
+    sample_posterior,
+)
 from paintjax.inverse import LogPosterior  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "coverage"
@@ -119,12 +128,8 @@ def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, s
               "truth": np.asarray(t, float), "clean": np.asarray(clean["clean"], float), "y": np.asarray(y, float), "free": list(free),
               "starts": int(starts), "steps": int(steps), "walkers": int(walkers), "seed": int(seed), "levels": [float(lv) for lv in levels],
               "converge": bool(converge), "stopping_rule": [MAX_RHAT, MAX_STEPS]}
-    def build():  # the row as JSON text (NaN kept as JSON's NaN token, NumPy scalars as Python numbers)
-        row = _analyse(forward_name, options, i, t, clean, y, free, starts, steps, walkers, seed, levels, converge)
-        return {"row": np.asarray(json.dumps(row, default=lambda o: np.asarray(o).tolist()))}
-
-    arrays, _ = cached_arrays("coverage-row", inputs, build)
-    return json.loads(str(arrays["row"]))
+    row, _ = cached_json("coverage-row", inputs, lambda: _analyse(forward_name, options, i, t, clean, y, free, starts, steps, walkers, seed, levels, converge))
+    return row
 
 
 def _analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,

@@ -11,7 +11,7 @@ Float64 is *not* enabled on import. The CLI, the experiments and the tests enabl
 """
 
 from . import appearance, brdf, instrument, inverse, microstructure, optics, tracer, wave
-from ._cache import cache_key, cached_arrays, default_cache_dir, enable_compilation_cache
+from ._cache import cache_key, cached_arrays, cached_json, default_cache_dir, enable_compilation_cache
 from ._io import atomic_savefig, atomic_savez, atomic_write_json, to_jsonable
 
 # the forward pipeline: a paint's inputs → five-angle L*

@@ -162,3 +162,17 @@ def cached_arrays(
     arrays = {k: np.asarray(v) for k, v in build().items()}
     save_cached(path, kind, inputs, arrays)
     return arrays, False
+
+
+def cached_json(kind: str, inputs: dict, build: Callable[[], object], **kwargs) -> tuple[object, bool]:
+    """A JSON document of a build, cached as `cached_arrays` caches arrays: the text is the entry's one
+    array (read whatever its name, so entries written under another name stay valid).
+
+    NumPy arrays and scalars in the document are stored as lists and numbers, NaN as JSON's NaN token.
+
+    Returns:
+        (document, hit) — hit is True when it came from the cache.
+    """
+    arrays, hit = cached_arrays(kind, inputs, lambda: {"json": np.asarray(json.dumps(build(), default=lambda o: np.asarray(o).tolist()))}, **kwargs)
+    (text,) = arrays.values()
+    return json.loads(str(text)), hit

@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from paintjax._cache import CACHE_FORMAT_VERSION, cache_key, cache_path, cached_arrays, default_cache_dir, save_cached
+from paintjax._cache import CACHE_FORMAT_VERSION, cache_key, cache_path, cached_arrays, cached_json, default_cache_dir, save_cached
 from paintjax.brdf._table import platelet_table_arrays
 
 
@@ -30,6 +30,26 @@ def test_hit_returns_identical_arrays(tmp_path):
     assert (hit1, hit2) == (False, True) and build.calls == 1
     for k in first:
         assert second[k].dtype == first[k].dtype and np.array_equal(second[k], first[k])
+
+
+
+def test_json_document_round_trip_and_entries_written_under_another_name(tmp_path):
+    """`cached_json`: a document with NumPy values and NaN is built once and read back equal; an entry
+    whose one array has another name (as the coverage study's rows were written) is read, not rebuilt."""
+    calls = []
+
+    def build():
+        calls.append(1)
+        return {"x": np.arange(3.0), "y": np.float64(0.5), "z": float("nan"), "s": "text"}
+
+    first, hit0 = cached_json("doc", {"a": 1}, build, folder=tmp_path)
+    again, hit1 = cached_json("doc", {"a": 1}, build, folder=tmp_path)
+    assert (hit0, hit1) == (False, True) and len(calls) == 1
+    assert first["x"] == [0.0, 1.0, 2.0] and first["y"] == 0.5 and np.isnan(first["z"]) and first["s"] == "text"
+    assert again["x"] == first["x"] and np.isnan(again["z"])
+    cached_arrays("legacy", {"b": 2}, lambda: {"row": np.asarray('{"v": 7}')}, folder=tmp_path)
+    doc, hit = cached_json("legacy", {"b": 2}, lambda: calls.append(2) or {"v": 0}, folder=tmp_path)
+    assert hit and doc == {"v": 7} and calls == [1]
 
 
 def test_key_depends_on_every_input():

@@ -66,12 +66,11 @@ def inference(*, seed: int = 0, progress: bool = True) -> dict:
     """Both panels' posteriors with the published inputs as data (δ free, then δ = 0) and verdicts
     (each panel's summary from the cache when one matches; "cached" says which)."""
     import hashlib
-    import json
 
     import jax
 
     from .. import __version__
-    from .._cache import cached_arrays
+    from .._cache import cached_json
     from .._pipeline import _source_digest
     from .._samples import load_sample
     from ..inverse._chain import MAX_RHAT, MAX_STEPS
@@ -91,8 +90,8 @@ def inference(*, seed: int = 0, progress: bool = True) -> dict:
         s = load_sample(name)
         inputs = {"version": SUMMARY_VERSION, "paintjax": __version__, "code": code, "forward": forward.fingerprint(), "reading": digest.hexdigest(),
                   "sample": repr(s), "runs": list(runs), "seed": int(seed), "max_rhat": MAX_RHAT, "max_steps": MAX_STEPS, "disagree_p": DISAGREE_P}
-        arrays, hit = cached_arrays("demo-panel", inputs, lambda: {"summary": np.asarray(json.dumps(_panel_summary(forward, reading, s, runs, seed), default=lambda o: np.asarray(o).tolist()))})
-        out["panels"][s.name] = json.loads(str(arrays["summary"])) | {"cached": bool(hit)}
+        summary, hit = cached_json("demo-panel", inputs, lambda: _panel_summary(forward, reading, s, runs, seed))
+        out["panels"][s.name] = summary | {"cached": bool(hit)}
     return out
 
 
