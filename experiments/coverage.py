@@ -16,9 +16,10 @@ lobe, and the lobe depends mostly on σ/τ) that short chains started at the fit
   unit cube (`grid`): it separates the calibration of the statistical model from the mixing of
   the finite MCMC chains.
 
-Writes experiments/output/coverage/summary.json and coverage.png (atomic). Each dataset's row (fit and
-posterior) is cached under `$PAINTJAX_CACHE` by everything it depends on (forward model, data, settings,
-`ROW_VERSION`), so an interrupted study, rerun with the same command, resumes where it stopped.
+Writes experiments/output/coverage/summary.json and coverage.png (atomic). Each dataset's tracer run and
+row (fit and posterior) is stored as it finishes in the output folder's `parts/` (content-keyed files, by
+everything they depend on: forward model, data, settings, `ROW_VERSION`), so an interrupted study, rerun
+with the same command, resumes where it stopped, on this machine or on another that has the folder.
 
 ``--forward tracer-emulator``: the datasets come from the ray TRACER instead (direct runs, each
 with its own array and ray seed 1000 + i, different from the emulator's common-random-number seed
@@ -90,7 +91,7 @@ def _models(forward_name: str, options: dict):
     return _WORKER[key]
 
 
-def clean_curve(forward_name: str, options: dict, i: int, t) -> dict:
+def clean_curve(forward_name: str, options: dict, i: int, t, parts=None) -> dict:
     """Noise-free L* of prior draw i (a task): from the tracer (array and ray seed 1000 + i) or the
     analytic model; {"error": …} where the draw has no tracer array (a tilt law that cannot fit the film)."""
     forward, direct, _, _ = _models(forward_name, options)
@@ -106,7 +107,7 @@ def clean_curve(forward_name: str, options: dict, i: int, t) -> dict:
     # cached by the tracer's identity, θ and seed: a rerun with another emulator re-uses the same direct runs
     inputs = {"tracer": direct.settings.identity(), "angles": list(direct.angles), "theta": t.tolist(), "seed": 1000 + i, "mode": "rsa"}
     try:
-        arrays, _ = cached_arrays("coverage-clean-curve", inputs, run_tracer)
+        arrays, _ = cached_arrays("coverage-clean-curve", inputs, run_tracer, folder=parts)
     except ValueError as err:  # no array for this tilt law in this film
         return {"error": str(err)}
     return {"clean": arrays["clean"], "clean_se": arrays["clean_se"], "seconds": direct.seconds - t0}
@@ -117,9 +118,9 @@ ROW_VERSION = 1
 
 
 def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,
-            levels, converge: bool = False) -> dict:
-    """Least squares and the posterior of one synthetic dataset (a task): its row of the summary, cached on disk
-    (`$PAINTJAX_CACHE`) under everything it depends on, so an interrupted study resumes at the first dataset not done."""
+            levels, converge: bool = False, parts=None) -> dict:
+    """Least squares and the posterior of one synthetic dataset (a task): its row of the summary, stored in `parts`
+    (default `$PAINTJAX_CACHE`) under everything it depends on, so an interrupted study resumes at the first dataset not done."""
     import paintjax
     from paintjax.inverse import MAX_RHAT, MAX_STEPS
 
@@ -128,7 +129,8 @@ def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, s
               "truth": np.asarray(t, float), "clean": np.asarray(clean["clean"], float), "y": np.asarray(y, float), "free": list(free),
               "starts": int(starts), "steps": int(steps), "walkers": int(walkers), "seed": int(seed), "levels": [float(lv) for lv in levels],
               "converge": bool(converge), "stopping_rule": [MAX_RHAT, MAX_STEPS]}
-    row, _ = cached_json("coverage-row", inputs, lambda: _analyse(forward_name, options, i, t, clean, y, free, starts, steps, walkers, seed, levels, converge))
+    row, _ = cached_json("coverage-row", inputs, lambda: _analyse(forward_name, options, i, t, clean, y, free, starts, steps, walkers, seed, levels, converge),
+                         folder=parts)
     return row
 
 
@@ -175,6 +177,7 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
     tracer = forward_name in TRACER_FORWARDS
     t_build = time.perf_counter()
+    parts = out / "parts"  # each tracer run and row as it finishes: the study resumes from here
     forward, direct, spec, _ = _models(forward_name, options)
     if tracer:
         from paintjax.inverse import tracer_info
@@ -208,7 +211,7 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
         idx = list(range(nxt, min(len(truths), nxt + datasets - len(kept))))
         traced = lambda k, c, m=len(idx): print(f"tracer run {k}/{m} of this wave done ({time.perf_counter() - t0:.0f} s)", flush=True)  # noqa: E731
         for i, c in zip(idx, tasks(clean_curve, [forward_name] * len(idx), [options] * len(idx), idx, [truths[i] for i in idx],
-                                   report=traced if tracer else None)):
+                                   [parts] * len(idx), report=traced if tracer else None)):
             if "error" in c:
                 skipped.append({"truth": dict(zip(ALL, map(float, truths[i]))), "reason": c["error"]})
                 print(f"prior draw {i + 1} skipped: {c['error']}", flush=True)
@@ -227,7 +230,8 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
               f"n_eff={row['n_eff']:.0f}, steps {row['steps']}, R-hat {row['rhat_max']:.3f}", flush=True)
 
     rows = tasks(analyse, [forward_name] * n, [options] * n, [i for i, _ in kept], [truths[i] for i, _ in kept], [c for _, c in kept],
-                 noisy, [FREE] * n, [starts] * n, [steps] * n, [walkers] * n, [seed] * n, [levels] * n, [converge] * n, report=report)
+                 noisy, [FREE] * n, [starts] * n, [steps] * n, [walkers] * n, [seed] * n, [levels] * n, [converge] * n, [parts] * n,
+                 report=report)
     tracer_seconds = sum(c["seconds"] for _, c in kept)
     coverage, calibration = coverage_tables(rows, FREE, levels)
     recovered = [r for r in rows if r["lsq_chi2"] < 20.0]

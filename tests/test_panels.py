@@ -167,8 +167,8 @@ def test_cli_batch_on_the_shipped_example(tmp_path, capsys):
 def test_coverage_replicates_run_as_dask_tasks_with_the_serial_numbers(tmp_path):
     """`experiments/coverage.py --workers 2`: the noise-free curves and every dataset's fit and posterior
     are tasks on a local cluster, and the study's numbers are those of the serial run (draws, noise and
-    seeds do not depend on where or in which order the tasks run). Each run has its own cache, where every
-    dataset's row is kept (an interrupted study resumes from them), so the Dask run computes its own."""
+    seeds do not depend on where or in which order the tasks run). Each run keeps every dataset's row in its
+    output folder's `parts/` (an interrupted study resumes from them), so the Dask run computes its own."""
     import json
     import os
     import subprocess
@@ -182,7 +182,7 @@ def test_coverage_replicates_run_as_dask_tasks_with_the_serial_numbers(tmp_path)
         env = os.environ | {"PAINTJAX_CACHE": str(tmp_path / f"cache-{name}")}
         subprocess.run([sys.executable, str(script), *common, *extra, "--out", str(tmp_path / name)], check=True, capture_output=True,
                        timeout=600, env=env)
-        assert len(list((tmp_path / f"cache-{name}").glob("coverage-row-*.npz"))) == 2
+        assert len(list((tmp_path / name / "parts").glob("coverage-row-*.npz"))) == 2
     serial, spread = (json.loads((tmp_path / name / "summary.json").read_text()) for name in ("serial", "dask"))
     assert len(serial["rows"]) == len(spread["rows"]) == 2
     for a, b in zip(serial["rows"], spread["rows"]):

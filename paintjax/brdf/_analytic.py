@@ -20,8 +20,10 @@ its in-plane 1-D counterpart is the closed form of the domain brief §4.
 (`coherent="delta"`: `evaluate` omits it, `sample` returns the mirror direction for it) or, by
 default, as a narrow lobe (`coherent="lobe"`): the diffraction lobe of a finite platelet, a
 Gaussian in β of standard deviation s per axis (default λ0 / (n D √(2π)), the Gaussian with the
-peak and area of the sinc² pattern of a square of width D), normalised to R_coh inside the unit
-disk. The lobe keeps next-event estimation in the tracer able to see the coherent light.
+peak and area of the sinc² pattern of a square of width D), carrying exactly R_coh(θ_i) into the
+unit disk at every incidence through a symmetric scale h(μ_i) h(μ_o) (`_coherent_lobe`: reciprocal,
+right at the disk's edge too). The lobe keeps next-event estimation in the tracer able to see the
+coherent light.
 """
 
 from __future__ import annotations
@@ -33,11 +35,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.scipy.special import gammaln, ndtr
+from jax.scipy.special import gammaln
 from jaxtyping import Array, Float
 
 from ..optics._aluminium import aluminium_index
 from ..optics._fresnel import fresnel_conductor
+from ._coherent_lobe import coherent_lobe, coherent_lobe_scale, coherent_scale_nodes
 from ._platelet import AbstractPlateletBRDF
 
 #: Probability with which lobe samplers draw β uniformly over the disk (bounds the weights).
@@ -150,6 +153,7 @@ class AbstractLobeBRDF(AbstractPlateletBRDF):
 
     coherent: eqx.AbstractVar[str]
     coherent_width: eqx.AbstractVar[float]
+    coherent_scale: eqx.AbstractVar[Float[Array, " M"]]
     is_delta: ClassVar[bool] = False
 
     @abc.abstractmethod
@@ -178,14 +182,16 @@ class AbstractLobeBRDF(AbstractPlateletBRDF):
         return jnp.sum(probs * jnp.exp(-rho2[..., None] / widths**2) / (np.pi * widths**2), -1)
 
     # ------------------------------------------------------------------ coherent lobe
+    def derive_coherent_scale(self) -> Float[Array, " M"]:
+        """The coherent lobe's symmetric scale h on `coherent_scale_nodes()` (empty for a delta); constructors
+        store it as `coherent_scale` once `coherent_reflectance` can be evaluated."""
+        if self.coherent != "lobe":
+            return jnp.zeros((0,))
+        return coherent_lobe_scale(self.coherent_reflectance(jnp.asarray(coherent_scale_nodes())), self.coherent_width)
+
     def _coherent_lobe(self, wi, wo):
-        """Narrow Gaussian lobe carrying R_coh inside the disk (reciprocal: uses mean cosine)."""
-        s = self.coherent_width
-        mu = 0.5 * (wi[..., 2] + wo[..., 2])
-        rho2 = jnp.sum((wi[..., :2] + wo[..., :2]) ** 2, -1)
-        sin_bar = _safe_sqrt(1.0 - mu**2)
-        inside = ndtr((1.0 - sin_bar) / s)  # disk edge ~ straight on the scale of s
-        return self.coherent_reflectance(mu) * jnp.exp(-0.5 * rho2 / s**2) / (2.0 * np.pi * s**2 * inside)
+        """Narrow Gaussian lobe h(μ_i) h(μ_o) G_s(ρ) carrying R_coh(μ_i) into the disk, reciprocal (`_coherent_lobe` module)."""
+        return coherent_lobe(self.coherent_scale, self.coherent_width, wi, wo)
 
     def evaluate(self, wi, wo):
         up = (wi[..., 2] > 0) & (wo[..., 2] > 0)
@@ -295,6 +301,7 @@ class AbstractGaussianMetalBRDF(AbstractLobeBRDF):
     coherent: str = eqx.field(static=True)
     coherent_width: float = eqx.field(static=True)
     num_terms: int = eqx.field(static=True)
+    coherent_scale: Float[Array, " M"]
 
     def __init__(
         self,
@@ -322,6 +329,7 @@ class AbstractGaussianMetalBRDF(AbstractLobeBRDF):
         check_positive("coherent_width", coherent_width, 1.0)
         self.coherent_width = float(coherent_width)
         self.num_terms = series_terms(2.0 * self.k * self.sigma_um)
+        self.coherent_scale = self.derive_coherent_scale()
 
     @property
     def medium_index(self):

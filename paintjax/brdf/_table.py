@@ -276,8 +276,8 @@ class TabulatedBRDF(AbstractLobeBRDF):
     not recorded, so the tracer cannot check it against the coat index). Derived in the
     constructor: lobe_texture, proposal_texture (J, R) and proposal_mass (J,), the rows' radial
     sums on a fine grid (`_radial_texture`, ≤ 2 × 10⁻⁴ from the sums), which `evaluate`, `pdf` and
-    `sample` look up, and incidence_lookup (B,), bins in cosθ that find the two rows about an
-    incidence; static radial_texture=False sums over the basis and searches the rows instead (the
+    `sample` look up, incidence_lookup (B,), bins in cosθ that find the two rows about an
+    incidence, and coherent_scale (M,), the coherent lobe's symmetric scale (`_coherent_lobe`); static radial_texture=False sums over the basis and searches the rows instead (the
     reference).
     """
 
@@ -294,6 +294,7 @@ class TabulatedBRDF(AbstractLobeBRDF):
     proposal_texture: Float[Array, "J R"]
     proposal_mass: Float[Array, " J"]
     incidence_lookup: Int[Array, " B"]
+    coherent_scale: Float[Array, " M"]
     coherent: str = eqx.field(static=True)
     coherent_width: float = eqx.field(static=True)
     n_medium: float | None = eqx.field(static=True)
@@ -316,6 +317,7 @@ class TabulatedBRDF(AbstractLobeBRDF):
         self.proposal_texture = log_radial_texture(proposal_coef, widths)
         self.proposal_mass = jnp.sum(jnp.asarray(proposal_coef) * np.pi * jnp.asarray(widths) ** 2, -1)
         self.incidence_lookup = incidence_lookup(jnp.cos(jnp.deg2rad(jnp.asarray(incidence_deg))))
+        self.coherent_scale = self.derive_coherent_scale()
 
     @classmethod
     def from_arrays(cls, arrays: dict, *, coherent: str = "lobe", coherent_width: float = 0.0083, n_medium: float | None = None) -> "TabulatedBRDF":

@@ -292,8 +292,8 @@ WIDE_TRACER_SETTINGS = TracerSettings(sigma_nodes=(0.02, 0.15, 7), tau_nodes=(0.
 
 def wide_tracer_emulator(free: Sequence[str] = TRACER_PARAMETERS, fixed: Mapping[str, float] | None = None, bounds=None, **kw):
     """`tracer_emulator` over `WIDE_TRACER_BOX` with `WIDE_TRACER_SETTINGS` (registered as ``"tracer-emulator-wide"``;
-    21 min to build on 2 Dask workers, longer serially, then cached; shipped). Its error (RMS) per standard angle is 2.9–3.6 L*
-    (held-out RMS 2.0–3.5, largest 13.1 L*); at −15° (`angles=`, a sixth GP) 5.0 L* (held-out RMS 5.7, largest 17.6 L*)."""
+    13 min to build on 2 Dask workers on 2 cores, longer serially, then cached; shipped). Its error (RMS) per standard angle is
+    3.0–3.5 L* (held-out RMS 1.8–3.2, largest 10.6 L*); at −15° (`angles=`, a sixth GP) 5.0 L* (held-out RMS 5.6, largest 16.3 L*)."""
     box = dict(WIDE_TRACER_BOX) | dict(bounds or {})
     return tracer_emulator(free, fixed, box, settings=kw.pop("settings", WIDE_TRACER_SETTINGS), **kw)
 
