@@ -19,7 +19,8 @@ lobe, and the lobe depends mostly on σ/τ) that short chains started at the fit
 Writes experiments/output/coverage/summary.json and coverage.png (atomic). Each dataset's tracer run and
 row (fit and posterior) is stored as it finishes in the output folder's `parts/` (content-keyed files, by
 everything they depend on: forward model, data, settings, `ROW_VERSION`), so an interrupted study, rerun
-with the same command, resumes where it stopped, on this machine or on another that has the folder.
+with the same command, resumes where it stopped, on this machine or on another that has the folder;
+the same command with `--interim` runs nothing and tabulates the rows stored so far into `interim.json`.
 
 ``--forward tracer-emulator``: the datasets come from the ray TRACER instead (direct runs, each
 with its own array and ray seed 1000 + i, different from the emulator's common-random-number seed
@@ -117,10 +118,15 @@ def clean_curve(forward_name: str, options: dict, i: int, t, parts=None) -> dict
 ROW_VERSION = 1
 
 
+class _NotDone(Exception):
+    """A dataset's row is not stored yet (an interim report computes nothing)."""
+
+
 def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,
-            levels, converge: bool = False, parts=None) -> dict:
+            levels, converge: bool = False, parts=None, interim: bool = False) -> dict | None:
     """Least squares and the posterior of one synthetic dataset (a task): its row of the summary, stored in `parts`
-    (default `$PAINTJAX_CACHE`) under everything it depends on, so an interrupted study resumes at the first dataset not done."""
+    (default `$PAINTJAX_CACHE`) under everything it depends on, so an interrupted study resumes at the first dataset not done.
+    With `interim`, only a stored row is read (None when there is none)."""
     import paintjax
     from paintjax.inverse import MAX_RHAT, MAX_STEPS
 
@@ -129,8 +135,15 @@ def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, s
               "truth": np.asarray(t, float), "clean": np.asarray(clean["clean"], float), "y": np.asarray(y, float), "free": list(free),
               "starts": int(starts), "steps": int(steps), "walkers": int(walkers), "seed": int(seed), "levels": [float(lv) for lv in levels],
               "converge": bool(converge), "stopping_rule": [MAX_RHAT, MAX_STEPS]}
-    row, _ = cached_json("coverage-row", inputs, lambda: _analyse(forward_name, options, i, t, clean, y, free, starts, steps, walkers, seed, levels, converge),
-                         folder=parts)
+    def build():
+        if interim:
+            raise _NotDone
+        return _analyse(forward_name, options, i, t, clean, y, free, starts, steps, walkers, seed, levels, converge)
+
+    try:
+        row, _ = cached_json("coverage-row", inputs, build, folder=parts)
+    except _NotDone:
+        return None
     return row
 
 
@@ -168,9 +181,12 @@ def _analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, 
 
 
 def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Path, free=("shape", "scale"),
-        forward_name: str = "analytic", forward_options: dict | None = None, levels=(0.5, 0.9), client=None, converge: bool = False) -> dict:
+        forward_name: str = "analytic", forward_options: dict | None = None, levels=(0.5, 0.9), client=None, converge: bool = False,
+        interim: bool = False) -> dict:
     """The study; with a Dask `client` the tracer runs and the datasets' fits and posteriors are tasks on
-    its workers (the same numbers as the serial loop: draws, noise and seeds do not depend on the order)."""
+    its workers (the same numbers as the serial loop: draws, noise and seeds do not depend on the order).
+    With `interim`, no fit or posterior runs: the rows already stored in `out`/parts are tabulated into
+    `out`/interim.json (the study's summary.json is written only when every row is done)."""
     global FREE
     FREE = tuple(free)
     options = dict(forward_options or {})
@@ -224,6 +240,8 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     t_rows = time.perf_counter()
 
     def report(k, row):  # one line per finished dataset, with the time left at the mean pace so far
+        if row is None:
+            return
         spent = time.perf_counter() - t_rows
         print(f"dataset {k}/{n} done ({spent:.0f} s, about {spent / k * (n - k):.0f} s left): χ²={row['lsq_chi2']:.3g}, "
               f"starts at best {row['starts_at_best']}/{starts}, inside@{levels[-1]:g}={[row['inside'][f'{p}@{levels[-1]}'] for p in FREE]}, "
@@ -231,7 +249,16 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
 
     rows = tasks(analyse, [forward_name] * n, [options] * n, [i for i, _ in kept], [truths[i] for i, _ in kept], [c for _, c in kept],
                  noisy, [FREE] * n, [starts] * n, [steps] * n, [walkers] * n, [seed] * n, [levels] * n, [converge] * n, [parts] * n,
-                 report=report)
+                 [interim] * n, report=None if interim else report)
+    if interim:
+        done = [r for r in rows if r is not None]
+        coverage, calibration = coverage_tables(done, FREE, levels) if done else ({}, {})
+        report_ = {"interim": True, "forward": forward_name, "free": list(FREE), "walkers": walkers, "steps": steps, "converge": converge,
+                   "seed": seed, "datasets": datasets, "datasets_done": len(done), "coverage": coverage, "calibration": calibration,
+                   "steps_per_dataset": [r["steps"] for r in done], "converged": int(sum(bool(r["converged"]) for r in done)),
+                   "rhat_max": [r["rhat_max"] for r in done], "rows": done}
+        atomic_write_json(out / "interim.json", report_)
+        return report_
     tracer_seconds = sum(c["seconds"] for _, c in kept)
     coverage, calibration = coverage_tables(rows, FREE, levels)
     recovered = [r for r in rows if r["lsq_chi2"] < 20.0]
@@ -392,6 +419,8 @@ def main(argv=None):
                     "cluster of this many worker processes (default 0: serial, in this process)")
     ap.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786) to run the tasks on")
     ap.add_argument("--out", help=f"output folder (default {OUT} or {OUT_TRACER})")
+    ap.add_argument("--interim", action="store_true", help="run no fit or posterior: tabulate the rows already stored in "
+                    "--out/parts into --out/interim.json (the coverage so far of a study still running)")
     ap.add_argument("--combine", nargs="+", metavar="FOLDER", help="pool the summaries of studies run with different --seed "
                     "(same model, parameters and chains) into --out, recomputing coverage and rank histograms; runs nothing else")
     a = ap.parse_args(argv)
@@ -416,17 +445,20 @@ def main(argv=None):
                                                                                dashboard_address=":0"))
     try:
         s = run(a.datasets, a.steps, a.walkers, a.starts, a.seed, out, tuple(free.split(",")), a.forward, levels=levels, client=client,
-                converge=a.converge)
+                converge=a.converge, interim=a.interim)
     finally:
         if client is not None:
             cluster = getattr(client, "cluster", None)
             client.close()
             if cluster is not None:
                 cluster.close()
+    if a.interim:
+        print(f"interim: {s['datasets_done']} of {s['datasets']} datasets done ({s['converged']} converged); written {out / 'interim.json'}")
     for lv, c in s["coverage"].items():
         print(f"coverage {float(lv):.0%}: MCMC {c['hits']}, exact grid {c.get('grid_hits')} of {c['datasets']} "
               f"(binomial 95 % range {c['binomial_95_range']})")
-    print("LM recovery:", s["lsq_recovery"])
+    if "lsq_recovery" in s:
+        print("LM recovery:", s["lsq_recovery"])
     return s
 
 

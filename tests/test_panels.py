@@ -168,7 +168,8 @@ def test_coverage_replicates_run_as_dask_tasks_with_the_serial_numbers(tmp_path)
     """`experiments/coverage.py --workers 2`: the noise-free curves and every dataset's fit and posterior
     are tasks on a local cluster, and the study's numbers are those of the serial run (draws, noise and
     seeds do not depend on where or in which order the tasks run). Each run keeps every dataset's row in its
-    output folder's `parts/` (an interrupted study resumes from them), so the Dask run computes its own."""
+    output folder's `parts/` (an interrupted study resumes from them), so the Dask run computes its own;
+    `--interim` then reads the stored rows back without running a fit."""
     import json
     import os
     import subprocess
@@ -191,6 +192,12 @@ def test_coverage_replicates_run_as_dask_tasks_with_the_serial_numbers(tmp_path)
         np.testing.assert_allclose([a["lsq"][n] for n in a["lsq"]], [b["lsq"][n] for n in b["lsq"]], rtol=1e-6)
         np.testing.assert_allclose(list(a["pit"].values()), list(b["pit"].values()), atol=1e-9)
     assert serial["coverage"] == spread["coverage"]
+    # `--interim` runs nothing: it tabulates the stored rows, here all of them, as the summary did
+    subprocess.run([sys.executable, str(script), *common, "--interim", "--out", str(tmp_path / "serial")], check=True, capture_output=True,
+                   timeout=600, env=os.environ | {"PAINTJAX_CACHE": str(tmp_path / "cache-interim")})
+    interim = json.loads((tmp_path / "serial" / "interim.json").read_text())
+    assert interim["datasets_done"] == 2 and interim["coverage"] == serial["coverage"]
+    assert [r["pit"] for r in interim["rows"]] == [r["pit"] for r in serial["rows"]]
 
 
 def test_coverage_studies_of_different_seeds_pool_into_one(tmp_path):
