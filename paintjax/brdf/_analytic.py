@@ -182,7 +182,7 @@ class AbstractLobeBRDF(AbstractPlateletBRDF):
         return jnp.sum(probs * jnp.exp(-rho2[..., None] / widths**2) / (np.pi * widths**2), -1)
 
     # ------------------------------------------------------------------ coherent lobe
-    def derive_coherent_scale(self) -> Float[Array, " M"]:
+    def _derive_coherent_scale(self) -> Float[Array, " M"]:
         """The coherent lobe's symmetric scale h on `coherent_scale_nodes()` (empty for a delta); constructors
         store it as `coherent_scale` once `coherent_reflectance` can be evaluated."""
         if self.coherent != "lobe":
@@ -329,7 +329,7 @@ class AbstractGaussianMetalBRDF(AbstractLobeBRDF):
         check_positive("coherent_width", coherent_width, 1.0)
         self.coherent_width = float(coherent_width)
         self.num_terms = series_terms(2.0 * self.k * self.sigma_um)
-        self.coherent_scale = self.derive_coherent_scale()
+        self.coherent_scale = self._derive_coherent_scale()
 
     @property
     def medium_index(self):

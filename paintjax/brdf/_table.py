@@ -277,8 +277,8 @@ class TabulatedBRDF(AbstractLobeBRDF):
     constructor: lobe_texture, proposal_texture (J, R) and proposal_mass (J,), the rows' radial
     sums on a fine grid (`_radial_texture`, ≤ 2 × 10⁻⁴ from the sums), which `evaluate`, `pdf` and
     `sample` look up, incidence_lookup (B,), bins in cosθ that find the two rows about an
-    incidence, and coherent_scale (M,), the coherent lobe's symmetric scale (`_coherent_lobe`); static radial_texture=False sums over the basis and searches the rows instead (the
-    reference).
+    incidence, and coherent_scale (M,), the coherent lobe's symmetric scale (`_coherent_lobe`);
+    static radial_texture=False sums over the basis and searches the rows instead (the reference).
     """
 
     incidence_deg: Float[Array, " J"]
@@ -317,7 +317,7 @@ class TabulatedBRDF(AbstractLobeBRDF):
         self.proposal_texture = log_radial_texture(proposal_coef, widths)
         self.proposal_mass = jnp.sum(jnp.asarray(proposal_coef) * np.pi * jnp.asarray(widths) ** 2, -1)
         self.incidence_lookup = incidence_lookup(jnp.cos(jnp.deg2rad(jnp.asarray(incidence_deg))))
-        self.coherent_scale = self.derive_coherent_scale()
+        self.coherent_scale = self._derive_coherent_scale()
 
     @classmethod
     def from_arrays(cls, arrays: dict, *, coherent: str = "lobe", coherent_width: float = 0.0083, n_medium: float | None = None) -> "TabulatedBRDF":
