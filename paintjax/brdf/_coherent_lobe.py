@@ -114,7 +114,7 @@ def scale_at(scale: Float[Array, " M"], mu: Float[Array, "..."]) -> Float[Array,
 
 
 def coherent_lobe(scale: Float[Array, " M"], width: float, wi: Float[Array, "... 3"], wo: Float[Array, "... 3"]) -> Float[Array, "..."]:
-    """f_coh = h(μ_i) h(μ_o) G_s(|β_o + β_i|) [1/sr] (zero-free above the plane; the caller masks below it)."""
+    """f_coh = h(μ_i) h(μ_o) G_s(|β_o + β_i|) [1/sr] (the caller masks directions below the plane)."""
     rho2 = jnp.sum((wi[..., :2] + wo[..., :2]) ** 2, -1)
     g = jnp.exp(-0.5 * rho2 / width**2) / (2.0 * np.pi * width**2)
     return scale_at(scale, wi[..., 2]) * scale_at(scale, wo[..., 2]) * g
