@@ -259,7 +259,7 @@ def test_demo_reads_each_panels_posterior_summary_from_the_cache(tmp_path, monke
 
     def stand_in(forward, reading, s, runs, seed):
         calls.append((s.name, seed))
-        return {"measured": list(s.L_star), "estimates": {}, "L_star_q50": np.asarray(s.L_star) + seed, "predictive_p_value": 0.5,
+        return {"measured": list(s.L_star), "estimates": {}, "L_star_q50": np.asarray(s.L_star) + seed, "predictive_p_value": 0.5, "predictive_p_value_se": 0.01,
                 "verdict": "agree", "at_edge": {}, "converged": {label: True for label in runs}, "seconds": 1.0}
 
     monkeypatch.setattr(_demo, "_panel_summary", stand_in)

@@ -68,6 +68,25 @@ def test_posterior_predictive_check_separates_fit_from_misfit():
     assert a["p_value"] == b["p_value"]
 
 
+@pytest.mark.parametrize("heavy", [False, True])
+def test_predictive_p_value_standard_error_matches_its_spread_over_seeds(heavy):
+    """The stated Monte Carlo SE of p is the spread of p over independent checks: 48 seeds, each drawing
+    64 of 4096 posterior draws (and, for the counted p, its own replicates). The seeds' SD of p lies within
+    0.7–1.4 of the mean stated SE (the SD of 48 values is itself uncertain by ≈ 10 %)."""
+    truth = np.array([2.6, 1.9, 0.15])
+    L = np.asarray(MIRROR(np.tile(truth, (16, 1))))[0]
+    rng = np.random.default_rng(7)
+    draws = truth + rng.normal(scale=[0.05, 0.05, 0.005], size=(4096, 3))
+    result = types.SimpleNamespace(names=("shape", "scale", "diffuse"), samples=draws)
+    forward, kw = (_HeavyTailed(3.0), dict(replicates=20)) if heavy else (MIRROR, {})
+    y = L + np.array([1.0, -1.0, 1.0, -0.5, 0.5])
+    checks = [posterior_predictive_check(result, forward, y, max_draws=64, seed=s, instrument_sd=1.0, **kw) for s in range(48)]
+    p, se = np.array([c["p_value"] for c in checks]), np.array([c["p_value_se"] for c in checks])
+    assert np.all(se > 0) and 0.05 < np.mean(p) < 0.95, (np.mean(p), np.mean(se))
+    ratio = np.std(p, ddof=1) / np.mean(se)
+    assert 0.7 <= ratio <= 1.4, (ratio, np.std(p, ddof=1), np.mean(se))
+
+
 class _HeavyTailed(ForwardModel):
     """The mirror model with a stated Student-t error of scale 1 L* at every angle (as an emulator states its own)."""
 

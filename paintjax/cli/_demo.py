@@ -55,6 +55,7 @@ def _panel_summary(forward, reading, s, runs, seed: int) -> dict:
         "estimates": {k: {"mean": post["mean"][k], "q05": post["q05"][k], "q95": post["q95"][k]} for k in post["mean"] if k in _SHOWN},
         "L_star_q50": r["L* and inputs"]["check"]["L_star_q50"],
         "predictive_p_value": strict["check"]["p_value"],
+        "predictive_p_value_se": strict["check"]["p_value_se"],
         "verdict": r["verdict"],
         "at_edge": post["at_edge"],
         "converged": {label: bool(r[label]["posterior"].converged) for label in runs},
@@ -121,6 +122,6 @@ def run(args) -> int:
         verdict = ("the inputs and the L* DISAGREE within the stated errors" if p["verdict"] == "disagree"
                    else "the inputs and the L* agree within the stated errors")
         took = f"from the cache; sampled in {p['seconds']:.0f} s" if p["cached"] else f"{p['seconds']:.0f} s"
-        print(f"    with no model discrepancy: predictive p = {p['predictive_p_value']:.2g}: {verdict} ({took})")
+        print(f"    with no model discrepancy: predictive p = {p['predictive_p_value']:.2g} ± {p['predictive_p_value_se']:.1g}: {verdict} ({took})")
     print(f"  data: {args.out}/inference.json; docs/input_measurement.md explains the runs")
     return status

@@ -173,6 +173,7 @@ def compute(args) -> dict:
 
         check = posterior_predictive_check(pr, forward, measured, fixed=post_fixed, seed=args.seed)
         out["posterior"]["predictive_p_value"] = check["p_value"]
+        out["posterior"]["predictive_p_value_se"] = check["p_value_se"]
         out["posterior"]["inputs"] = args.inputs
         if inputs is not None:
             out["posterior"]["input_shift"] = inputs.shift_table({n: pr.draws(n) for n in pr.names})
@@ -285,7 +286,7 @@ def run(args) -> int:
     if r["posterior"] is not None:
         print(r["_posterior"].summary())
         post = r["posterior"]
-        print(f"posterior-predictive p = {post['predictive_p_value']:.3g} (is the measured L* what the posterior expects? "
+        print(f"posterior-predictive p = {post['predictive_p_value']:.3g} ± {post['predictive_p_value_se']:.1g} (is the measured L* what the posterior expects? "
               f"≲ 0.01: no){'' if post['inputs'] == 'none' else '; published inputs as data (σ read as ' + post['inputs'] + ')'}")
         if "discrepancy" in post["mean"]:
             print(f"  with a sampled model discrepancy δ ≈ {post['mean']['discrepancy']:.3g} L* absorbing misfit; "

@@ -148,13 +148,16 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
     given θ_i and p = mean_i P(χ²_m ≥ T_i) exactly; otherwise (an emulator's heavy-tailed error) p is
     counted over `replicates` replicated data sets per draw, as (hits + 1) / (trials + 1). A small p
     (≲ 0.01) says the model with these inputs and errors does not produce data like the measured ones.
+    Its Monte Carlo standard error is the spread of the per-draw tail probabilities over the draws
+    (which holds the replicates' counting noise too) ÷ √draws; it is conditional on the forward model,
+    so it does not hold how p moves when an emulator is rebuilt.
 
     Forward inputs that were neither sampled nor in `fixed` take their registered defaults, as in the
     posterior. `instrument_sd` may be one per angle; `angles` (m booleans) leaves the others out (m
     is then their count).
 
     Returns:
-        dict with "p_value", "chi2_median" (of T_i), the predictive band "L_star_q05", "L_star_q50",
+        dict with "p_value", its Monte Carlo standard error "p_value_se", "chi2_median" (of T_i), the predictive band "L_star_q05", "L_star_q50",
         "L_star_q95" (replicated data), "draws" used and "replicates" per draw (0: the exact χ² tail).
     """
     import jax.numpy as jnp
@@ -186,14 +189,17 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
     if np.isinf(forward.error_df):  # normal: T − Σ log(2π v) is χ²_m given θ
         v = var + np.asarray(forward.error_sd, float) ** 2
         T = np.sum(np.where(have, (y - L) ** 2 / v, 0.0), axis=1)
-        p, n_rep = float(np.mean(chi2_dist.sf(T, int(have.sum())))), 0
+        tail = chi2_dist.sf(T, int(have.sum()))
+        p, n_rep = float(np.mean(tail)), 0
     else:
         T = deviance(y - L, var, theta)
         n_rep = int(replicates)
-        hits = 0
+        hits = np.zeros(len(T))
         for _ in range(n_rep):
-            hits += int(np.sum(deviance(forward.sample_residual(rng, var, theta), var, theta) >= T))
-        p = (hits + 1.0) / (n_rep * len(T) + 1.0)
-    return {"p_value": p, "chi2_median": float(np.median(T)), "L_star_q05": np.quantile(rep, 0.05, axis=0),
+            hits += deviance(forward.sample_residual(rng, var, theta), var, theta) >= T
+        tail = hits / n_rep
+        p = (float(np.sum(hits)) + 1.0) / (n_rep * len(T) + 1.0)
+    se = float(np.std(tail, ddof=1) / np.sqrt(len(T))) if len(T) > 1 else float("nan")
+    return {"p_value": p, "p_value_se": se, "chi2_median": float(np.median(T)), "L_star_q05": np.quantile(rep, 0.05, axis=0),
             "L_star_q50": np.quantile(rep, 0.5, axis=0), "L_star_q95": np.quantile(rep, 0.95, axis=0), "draws": int(len(S)),
             "replicates": n_rep}
