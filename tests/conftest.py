@@ -1,15 +1,30 @@
 """Test configuration: the suite runs in float64 on the CPU (documented place that enables x64),
-with its own temporary on-disk cache so that it neither reads nor fills the user's cache."""
+with its own temporary on-disk cache so that it neither reads nor fills the user's cache.
+
+The pytest-xdist workers of one run share that cache (keyed by the run's id): a wave table, platelet
+array or XLA compilation that one worker made is read by the other instead of being made twice. Every
+test that checks a cache miss uses its own folder (`tmp_path`), and the cache's writes are atomic.
+"""
 
 import os
 import tempfile
+from pathlib import Path
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
-os.environ["PAINTJAX_CACHE"] = tempfile.mkdtemp(prefix="paintjax-test-cache-")
+_RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+if _RUN:
+    _CACHE = Path(tempfile.gettempdir()) / f"paintjax-test-cache-{_RUN}"
+    _CACHE.mkdir(exist_ok=True)
+    os.environ["PAINTJAX_CACHE"] = str(_CACHE)
+else:
+    os.environ["PAINTJAX_CACHE"] = tempfile.mkdtemp(prefix="paintjax-test-cache-")
 
 import jax  # noqa: E402
 
+from paintjax import enable_compilation_cache  # noqa: E402
+
 jax.config.update("jax_enable_x64", True)
+enable_compilation_cache()  # compilations of ≥ 1 s persist in the shared test cache
 
 #: The test modules that take minutes on the 2-core CPU, longest first (measured in `make test` on
 #: 2026-12-02: about 490, 240 and 160 s of a 1600 s total). They are collected first and the Makefile

@@ -267,3 +267,55 @@ def test_coverage_study_measures_the_emulators_miss_at_the_truths():
     np.testing.assert_allclose(miss["mean_se"], noise.std(0, ddof=1) / np.sqrt(n), rtol=1e-9)
     np.testing.assert_allclose(miss["rms"], np.sqrt(np.mean((offset + noise) ** 2, 0)), rtol=1e-9)
     assert miss["pit_spearman"]["shape"][2] == pytest.approx(1.0) and abs(miss["pit_spearman"]["shape"][0]) < 0.2
+
+
+def test_likelihood_variants_of_the_calibration_diagnosis():
+    """`experiments/coverage_variants.py`: the fixed-width variant evaluates the wrapped model's residual law at
+    its θ0 whatever θ it is given (and that law does vary with θ), the bias-corrected one shifts the L* by its
+    offset and keeps the law; both keep the model's names, angles and error."""
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    import jax.numpy as jnp
+
+    from paintjax.inverse import EmulatorError, ForwardModel
+    from paintjax.inverse._analytic import AnalyticForward
+
+    spec = importlib.util.spec_from_file_location("coverage_variants", Path(__file__).parents[1] / "experiments" / "coverage_variants.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # its equinox module needs a registered home
+    spec.loader.exec_module(mod)
+    mirror = AnalyticForward(rough=False)
+    law = EmulatorError(np.ones(5), np.array([0.5, -1.0, 2.0]), 3.0)
+
+    class Regional(ForwardModel):  # the mirror model with a residual law whose width varies with θ
+        parameter_names = mirror.parameter_names
+        aspecular_deg = mirror.aspecular_deg
+
+        def evaluate(self, theta):
+            return mirror.evaluate(theta)
+
+        def fingerprint(self):
+            return "regional mirror"
+
+        def residual_log_density(self, r, var, theta):
+            return law.residual_log_density(r, var, theta)
+
+    base = Regional()
+    rng = np.random.default_rng(0)
+    theta = jnp.asarray(np.c_[rng.uniform(1.5, 3.0, 8), rng.uniform(1.0, 2.5, 8), rng.uniform(0.0, 0.3, 8)])
+    theta0 = jnp.asarray([[2.6, 1.9, 0.15]])
+    r, var = jnp.asarray(rng.normal(0.0, 2.0, (8, 5))), jnp.full((8, 5), 0.09)
+    fixed = mod._Variant(base, jnp.zeros(5), theta0)
+    at0 = base.residual_log_density(r, var, jnp.broadcast_to(theta0, theta.shape))
+    np.testing.assert_allclose(fixed.residual_log_density(r, var, theta), at0, rtol=1e-12)
+    assert not np.allclose(base.residual_log_density(r, var, theta), at0, rtol=1e-3)
+    np.testing.assert_allclose(fixed(theta), base(theta), rtol=1e-12)
+    shifted = mod._Variant(base, jnp.arange(5.0))
+    np.testing.assert_allclose(shifted(theta), base(theta) - jnp.arange(5.0), rtol=1e-12)
+    np.testing.assert_allclose(shifted.residual_log_density(r, var, theta), base.residual_log_density(r, var, theta), rtol=1e-12)
+    assert shifted.parameter_names == base.parameter_names and list(shifted.aspecular_deg) == list(base.aspecular_deg)
+    assert mod.parse_rows("0-2,5", 10) == [0, 1, 2, 5]
+    with pytest.raises(SystemExit, match="--rows"):
+        mod.parse_rows("8-12", 10)
