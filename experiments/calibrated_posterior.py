@@ -142,7 +142,7 @@ def main(argv=None) -> int:
 
         def report(label, entry, name=name):
             print(f"{name}: {label}\n{entry['posterior'].summary()}", flush=True)
-            print(f"  posterior-predictive p = {entry['check']['p_value']:.3g}; input shifts (z) "
+            print(f"  posterior-predictive p = {entry['check']['p_value']:.3g} ± {entry['check']['p_value_se']:.1g}; input shifts (z) "
                   f"{ {k: round(v['z'], 2) for k, v in entry['input_shift'].items()} }", flush=True)
 
         result = panel_posteriors(em, s, reading, definition=args.definition, tilt_platelets=TILT_PLATELETS, walkers=args.walkers, max_steps=args.max_steps,
