@@ -323,8 +323,9 @@ def coverage_tables(rows, free, levels) -> tuple[dict, dict]:
 def emulator_miss(forward, rows, free) -> dict:
     """The emulator against the direct tracer run at each dataset's truth (the noise-free curve the data were
     drawn from): per angle the mean miss (emulator − tracer) with its standard error and the RMS, and the rank
-    correlation of each parameter's PIT with the miss at each angle. A mean miss is a bias the likelihood's
-    zero-mean error law does not hold; the correlation says which parameter it moves."""
+    correlation of each parameter's PIT, and of each parameter's truth, with the miss at each angle. A mean miss
+    is a bias the likelihood's zero-mean error law does not hold; a miss that varies with a truth is one no
+    constant correction removes; the PIT's correlation says which parameter it moves."""
     from scipy.stats import spearmanr
 
     truth = np.array([[r["truth"][n] for n in ALL] for r in rows])
@@ -332,7 +333,8 @@ def emulator_miss(forward, rows, free) -> dict:
     pit = {n: np.array([r["pit"][n] for r in rows]) for n in free}
     return {"angles": [float(a) for a in forward.aspecular_deg], "mean": miss.mean(0).tolist(),
             "mean_se": (miss.std(0, ddof=1) / np.sqrt(len(rows))).tolist(), "rms": np.sqrt(np.mean(miss**2, 0)).tolist(),
-            "pit_spearman": {n: [float(spearmanr(v, miss[:, j])[0]) for j in range(miss.shape[1])] for n, v in pit.items()}}
+            "pit_spearman": {n: [float(spearmanr(v, miss[:, j])[0]) for j in range(miss.shape[1])] for n, v in pit.items()},
+            "truth_spearman": {n: [float(spearmanr(truth[:, k], miss[:, j])[0]) for j in range(miss.shape[1])] for k, n in enumerate(ALL)}}
 
 
 def combine(folders, out: Path) -> dict:

@@ -267,6 +267,10 @@ def test_coverage_study_measures_the_emulators_miss_at_the_truths():
     np.testing.assert_allclose(miss["mean_se"], noise.std(0, ddof=1) / np.sqrt(n), rtol=1e-9)
     np.testing.assert_allclose(miss["rms"], np.sqrt(np.mean((offset + noise) ** 2, 0)), rtol=1e-9)
     assert miss["pit_spearman"]["shape"][2] == pytest.approx(1.0) and abs(miss["pit_spearman"]["shape"][0]) < 0.2
+    # a miss that grows with a truth: rank correlation 1 with that truth, none with the others
+    grows = [{**row, "L_star_clean": (np.asarray(row["L_star_clean"]) - 30.0 * row["truth"]["scale"]).tolist()} for row in rows]
+    steep = study.emulator_miss(Shifted(), grows, ("shape",))["truth_spearman"]
+    assert min(steep["scale"]) > 0.9 and max(abs(c) for c in steep["sigma"]) < 0.2, steep
 
 
 def test_likelihood_variants_of_the_calibration_diagnosis():
