@@ -136,6 +136,10 @@ def test_predictive_check_under_a_heavy_tailed_model_error():
     assert counted == pytest.approx(exact, abs=0.02), (counted, exact)
     with pytest.raises(ValueError, match=r"replicates must be an integer in \[1, 100000\]"):
         posterior_predictive_check(result, heavy, y, replicates=0)
+    with pytest.raises(ValueError, match="max_draws must be an integer >= 2"):
+        posterior_predictive_check(result, heavy, y, max_draws=1)
+    with pytest.raises(ValueError, match="at least 2 posterior draws"):
+        posterior_predictive_check(types.SimpleNamespace(names=result.names, samples=draws[:1]), heavy, y)
 
 
 def test_panel_posteriors_give_a_verdict_from_the_strict_run():

@@ -165,8 +165,12 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
 
     if isinstance(replicates, bool) or int(replicates) != replicates or not 1 <= replicates <= 100_000:
         raise ValueError(f"replicates must be an integer in [1, 100000], got {replicates!r}")
+    if isinstance(max_draws, bool) or int(max_draws) != max_draws or max_draws < 2:
+        raise ValueError(f"max_draws must be an integer >= 2 (p's standard error needs two draws), got {max_draws!r}")
     names = result.names
     S = np.asarray(result.samples)
+    if S.ndim != 2 or S.shape[0] < 2:
+        raise ValueError(f"result must hold at least 2 posterior draws (samples of shape (draws, parameters)), got shape {S.shape}")
     rng = np.random.default_rng(seed)
     idx = rng.choice(S.shape[0], size=min(int(max_draws), S.shape[0]), replace=False)
     S = S[idx]
@@ -199,7 +203,7 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
             hits += deviance(forward.sample_residual(rng, var, theta), var, theta) >= T
         tail = hits / n_rep
         p = (float(np.sum(hits)) + 1.0) / (n_rep * len(T) + 1.0)
-    se = float(np.std(tail, ddof=1) / np.sqrt(len(T))) if len(T) > 1 else float("nan")
+    se = float(np.std(tail, ddof=1) / np.sqrt(len(T)))
     return {"p_value": p, "p_value_se": se, "chi2_median": float(np.median(T)), "L_star_q05": np.quantile(rep, 0.05, axis=0),
             "L_star_q50": np.quantile(rep, 0.5, axis=0), "L_star_q95": np.quantile(rep, 0.95, axis=0), "draws": int(len(S)),
             "replicates": n_rep}
