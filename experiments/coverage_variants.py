@@ -30,6 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from paintjax import atomic_write_json
 from paintjax.inverse import ForwardModel, fit_least_squares, make_forward, sample_posterior
 
 ALL = ("shape", "scale", "sigma", "tau")
@@ -135,10 +136,9 @@ def main(argv=None) -> dict:
                "pit_shift_mean": {n: float(v.mean()) for n, v in shift.items()},
                "pit_shift_se": {n: float(v.std(ddof=1) / np.sqrt(len(v))) if len(v) > 1 else None for n, v in shift.items()}}
     args.out.mkdir(parents=True, exist_ok=True)
-    tmp = args.out / f".{args.variant}.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=1))
-    tmp.replace(args.out / f"{args.variant}.json")
-    print("mean PIT shift (variant − study): " + ", ".join(f"{n} {summary['pit_shift_mean'][n]:+.3f} ± {summary['pit_shift_se'][n]:.3f}" for n in ALL))
+    atomic_write_json(args.out / f"{args.variant}.json", summary)
+    se = {n: "n/a (one row)" if v is None else f"{v:.3f}" for n, v in summary["pit_shift_se"].items()}
+    print("mean PIT shift (variant − study): " + ", ".join(f"{n} {summary['pit_shift_mean'][n]:+.3f} ± {se[n]}" for n in ALL))
     return summary
 
 
