@@ -93,17 +93,34 @@ def test_shipped_tracer_emulator_errors_are_heavy_tailed_and_regional(tmp_path, 
     assert t_law > normal + 20, (t_law, normal)
 
 
-def test_added_spread_recovers_a_regional_normal_term():
-    """Residuals = the law's draws + a normal term whose scale varies over the box: maximum likelihood finds that term."""
-    from paintjax.inverse._error_model import fit_added_spread
+def test_run_to_run_fit_recovers_a_bias_over_the_box_and_a_regional_spread():
+    """Residuals = the law's draws + a bias linear over the box + a normal term whose scale varies over the box:
+    the fit finds the bias within its stated standard errors, and the spread."""
+    from paintjax.inverse._error_model import fit_run_to_run
 
     law = EmulatorError([1.0, 1.5], [0.0, 0.0], 2.4)
     rng = np.random.default_rng(5)
     z = rng.random((600, 2))
     sd, slope = np.array([2.0, 1.0]), np.array([1.5, -1.0])
+    bias = np.array([[1.0, -0.5], [3.0, 0.0], [0.0, -2.0]])  # centre, then per unit of z₁ and z₂; one column per angle
     extra = rng.standard_normal((600, 2)) * sd * np.exp((z - 0.5) @ slope)[:, None]
-    got_sd, got_slope = fit_added_spread(law, z, law.sample(rng, np.zeros((600, 2)), z) + extra)
-    np.testing.assert_allclose(got_sd, sd, rtol=0.2)
-    np.testing.assert_allclose(got_slope, slope, atol=0.4)
+    truth_mean = np.c_[np.ones(600), z - 0.5] @ bias
+    term = fit_run_to_run(law, z, law.sample(rng, np.zeros((600, 2)), z) + extra + truth_mean)
+    se = np.sqrt(np.diagonal(np.asarray(term.bias_cov), axis1=1, axis2=2)).T
+    assert np.all(np.abs(np.asarray(term.bias) - bias) < 3.5 * se), (term.bias, se)
+    assert np.all(se < 0.6)
+    np.testing.assert_allclose(term.sd, sd, rtol=0.2)
+    np.testing.assert_allclose(term.slope, slope, atol=0.4)
+    np.testing.assert_allclose(np.asarray(term.mean(jnp.asarray(z[:3]))), np.c_[np.ones(3), z[:3] - 0.5] @ np.asarray(term.bias))
+    # the predictive variance holds the spread and the bias's own uncertainty
+    v = np.asarray(term.variance(jnp.asarray(z[:3])))
+    spread = (np.asarray(term.sd) * np.exp((z[:3] - 0.5) @ np.asarray(term.slope))[:, None]) ** 2
+    assert np.all(v > spread) and np.all(v < spread + 1.0)
+    picked = term.select([1])
+    np.testing.assert_allclose(np.asarray(picked.mean(jnp.asarray(z[:3]))), np.asarray(term.mean(jnp.asarray(z[:3])))[:, [1]])
+    # without a bias in the data, none is found beyond its errors
+    term0 = fit_run_to_run(law, z, law.sample(rng, np.zeros((600, 2)), z) + extra)
+    se0 = np.sqrt(np.diagonal(np.asarray(term0.bias_cov), axis1=1, axis2=2)).T
+    assert np.all(np.abs(np.asarray(term0.bias)) < 3.5 * se0)
     with pytest.raises(ValueError, match="must be finite"):
-        fit_added_spread(law, z, np.full((600, 2), np.nan))
+        fit_run_to_run(law, z, np.full((600, 2), np.nan))

@@ -129,7 +129,7 @@ def test_known_inputs_posterior_netcdf_and_figures_of_a_batch(tmp_path, client):
     s1, odd = by_id["s1"], by_id["odd/id"]
     assert s1["dof"] == 5 + 2 - 4 and odd["dof"] == 5 - 4
     for r in (s1, odd):
-        assert r["sigma_q05"] < r["sigma_q50"] < r["sigma_q95"] and 0 < r["predictive_p"] <= 1
+        assert r["sigma_q05"] < r["sigma_q50"] < r["sigma_q95"] and 0 < r["predictive_p"] <= 1 and 0 <= r["predictive_p_se"] < 0.5
         assert r["rhat_max"] > 0.9 and r["ess_bulk_min"] > 0 and r["steps"] == 300
     assert np.isfinite(s1["sigma_known_z"]) and "sigma_known_z" not in odd
     serial = fit_panel(panels[0], SETTINGS["forward"], SETTINGS["free"], SETTINGS["n_starts"], SETTINGS["seed"], post)

@@ -114,6 +114,9 @@ def test_registered_emulator_builds_from_a_tiny_design_and_caches(tmp_path):
                        {"shape": (2.0, 4.0), "scale": (1.5, 3.0)}, **(opts | {"independent": 4}))
     info3 = tracer_info(em3)
     assert info3["tracer_evaluations_this_call"] == 4 and info3["independent_runs"] == 4
-    assert len(em3.spread_sd) == 5 and len(em3.spread_slope) == 2 and em3.fingerprint() != em2.fingerprint()
+    t = em3.run_to_run
+    assert t.sd.shape == (5,) and t.slope.shape == (2,) and t.bias.shape == (3, 5) and em3.fingerprint() != em2.fingerprint()
+    # it predicts an independent run: the GP of the CRN tracer less the fitted bias
+    np.testing.assert_allclose(np.asarray(em3(np.tile(x, (16, 1))))[0], y_em - np.asarray(t.mean(em3.unit_coordinates(jnp.asarray(x))))[0])
     r, var = jnp.full((1, 5), 3.0), jnp.full((1, 5), 0.09)
     assert not np.allclose(em3.residual_log_density(r, var, jnp.asarray(x)), em2.residual_log_density(r, var, jnp.asarray(x)))

@@ -248,7 +248,8 @@ def run_batch(args) -> int:
     def report(row, n, total):
         detail = f"χ² {row['chi2']:.3g}" if row["status"] == "ok" else row["error"]
         if row["status"] == "ok" and "predictive_p" in row:
-            detail += f", posterior-predictive p {row['predictive_p']:.2g}, R-hat ≤ {row['rhat_max']:.3f}"
+            se = f" ± {row['predictive_p_se']:.1g}" if "predictive_p_se" in row else ""
+            detail += f", posterior-predictive p {row['predictive_p']:.2g}{se}, R-hat ≤ {row['rhat_max']:.3f}"
         eta = (time.perf_counter() - t0) / n * (total - n)
         print(f"[{n}/{total}] {row['id']}: {row['status']} ({detail}); ETA {eta:.0f} s", file=sys.stderr, flush=True)
 

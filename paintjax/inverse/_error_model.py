@@ -12,6 +12,10 @@ fitted by maximum likelihood (`fit_emulator_error`). The likelihood of a measure
 terms (instrument repeatability, model discrepancy, run-to-run spread) to this error; the sum's density
 is the Student-t's scale mixture of normals, p(r) = ∫ N(r; 0, v + c² w) IG(w; ν/2, ν/2) dw, integrated
 on a fixed grid in log w (`residual_log_density`); with v = 0 it is the Student-t, with ν → ∞ the normal.
+
+An emulator of a tracer run with common random numbers (one array, one ray stream) also misses what an
+independent run gives (another array, other rays): `RunToRun` holds that miss's bias, linear over the box,
+and its spread, normal with a log-linear scale, fitted to misses against independent runs (`fit_run_to_run`).
 """
 
 from __future__ import annotations
@@ -143,14 +147,53 @@ def fit_emulator_error(z: np.ndarray, errors: np.ndarray) -> EmulatorError:
     return EmulatorError(np.exp(log_c), beta, df)
 
 
-def fit_added_spread(error: EmulatorError, z: np.ndarray, residuals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Maximum-likelihood normal spread added to an error law, with a log-linear scale over the box:
-    residuals r (n, m) at unit-cube points z (n, p) taken as r = e + ε, e ~ `error`, ε ~ Normal(0, s_j² exp(2γ·(z − ½))).
-    For an emulator of a tracer with common random numbers, r are its misses against independent runs and
-    ε is the run-to-run spread (another array, other rays), which the cross-validated law does not hold.
+#: Prior SD [L*] of each coefficient of a run-to-run bias (its value at the box centre, and its change across the
+#: box per parameter): weak against 96 independent runs, it keeps a fit to a handful of runs from chasing noise.
+BIAS_PRIOR_SD = 5.0
 
-    Returns:
-        (s (m,), γ (p,)).
+
+class RunToRun(eqx.Module):
+    """What an emulator of a common-random-number (CRN) tracer misses against independent runs (fresh arrays and
+    rays), beyond its cross-validated error law: a bias linear over the box and a normal spread whose scale varies
+    log-linearly over the box (`fit_run_to_run`).
+
+    Attributes:
+        bias: (p + 1, m) per angle: the bias at the box centre, then its change per unit-cube coordinate [L*].
+        bias_cov: (m, p + 1, p + 1) the bias coefficients' covariance (inverse Hessian of the fit).
+        sd: (m,) the spread's scale at the box centre [L*]; slope: (p,) its log-linear change (shared by the angles).
+    """
+
+    bias: Float[Array, "q m"]
+    bias_cov: Float[Array, "m q q"]
+    sd: Float[Array, " m"]
+    slope: Float[Array, " p"]
+
+    def mean(self, z: Float[Array, "n p"]) -> Float[Array, "n m"]:
+        """The bias (emulator of the CRN tracer − independent run) at unit-cube points z."""
+        return _design(z) @ self.bias
+
+    def variance(self, z: Float[Array, "n p"]) -> Float[Array, "n m"]:
+        """The spread's variance plus the fitted bias's own variance at unit-cube points z."""
+        x = _design(z)
+        return regional_scale(self.sd, self.slope, z) ** 2 + jnp.einsum("nq,mqr,nr->nm", x, self.bias_cov, x)
+
+    def select(self, rows) -> "RunToRun":
+        """The terms of some output angles (their rows, in that order)."""
+        rows = np.asarray(rows)
+        return RunToRun(self.bias[:, rows], self.bias_cov[rows], self.sd[rows], self.slope)
+
+
+def _design(z):
+    z = jnp.asarray(z)
+    return jnp.concatenate([jnp.ones(z.shape[:-1] + (1,)), z - 0.5], axis=-1)
+
+
+def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray) -> RunToRun:
+    """Maximum a-posteriori `RunToRun` of an emulator's misses r (n, m) against independent runs at unit-cube
+    points z (n, p): r = b(z) + e + ε, e ~ `error` (the emulator's cross-validated law against the CRN tracer it
+    was trained on), b(z) = b₀ + B·(z − ½) the CRN tracer's bias against fresh runs (each coefficient with a normal
+    prior of SD `BIAS_PRIOR_SD`), ε ~ Normal(0, s_j² exp(2γ·(z − ½))) the run-to-run spread (another array,
+    other rays). The bias's covariance is the inverse Hessian at the optimum.
     """
     import jax
     from scipy import optimize
@@ -158,15 +201,24 @@ def fit_added_spread(error: EmulatorError, z: np.ndarray, residuals: np.ndarray)
     z, r = np.asarray(z, float), np.asarray(residuals, float)
     if z.ndim != 2 or r.ndim != 2 or z.shape[0] != r.shape[0] or r.shape[1] != error.scale.shape[0] or not np.all(np.isfinite(r)):
         raise ValueError(f"z (n, p) and residuals (n, {error.scale.shape[0]}) must be finite with the same n, got {z.shape} and {r.shape}")
-    m = r.shape[1]
-    zj, rj = jnp.asarray(z), jnp.asarray(r)
+    m, p = r.shape[1], z.shape[1]
+    zj, rj, x = jnp.asarray(z), jnp.asarray(r), _design(z)
+
+    def unpack(q):
+        return jnp.exp(q[:m]), q[m:m + p], q[m + p:].reshape(p + 1, m)
 
     @jax.jit
-    def nll(q):
-        var = regional_scale(jnp.exp(q[:m]), q[m:], zj) ** 2
-        return -jnp.sum(error.residual_log_density(rj, var, zj))
+    def objective(q):
+        sd, slope, bias = unpack(q)
+        var = regional_scale(sd, slope, zj) ** 2
+        return -jnp.sum(error.residual_log_density(rj - x @ bias, var, zj)) + 0.5 * jnp.sum((bias / BIAS_PRIOR_SD) ** 2)
 
-    grad = jax.jit(jax.grad(nll))
-    q0 = np.r_[np.log(np.std(r, axis=0) + 1e-9), np.zeros(z.shape[1])]
-    res = optimize.minimize(lambda q: float(nll(jnp.asarray(q))), q0, jac=lambda q: np.asarray(grad(jnp.asarray(q))), method="L-BFGS-B")
-    return np.exp(res.x[:m]), res.x[m:]
+    grad = jax.jit(jax.grad(objective))
+    start = np.linalg.lstsq(np.asarray(x), r, rcond=None)[0]
+    q0 = np.r_[np.log(np.std(r - np.asarray(x) @ start, axis=0) + 1e-9), np.zeros(p), start.ravel()]
+    res = optimize.minimize(lambda q: float(objective(jnp.asarray(q))), q0, jac=lambda q: np.asarray(grad(jnp.asarray(q))), method="L-BFGS-B")
+    sd, slope, bias = unpack(jnp.asarray(res.x))
+    cov = np.linalg.pinv(np.asarray(jax.hessian(objective)(jnp.asarray(res.x))))[m + p:, m + p:]  # rows (k, j): k·m + j
+    idx = np.arange(p + 1)[:, None] * m + np.arange(m)[None, :]
+    bias_cov = np.stack([cov[np.ix_(idx[:, j], idx[:, j])] for j in range(m)])
+    return RunToRun(bias, jnp.asarray(bias_cov), sd, slope)

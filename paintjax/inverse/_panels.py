@@ -225,7 +225,7 @@ def _panel_posterior(fwd, names, L, sd, have, known, fr, settings: dict, seed: i
     check = posterior_predictive_check(pr, fwd, L, angles=have, instrument_sd=sd, seed=seed)
     out = {"posterior_converged": bool(pr.converged), "steps": int(pr.steps), "rhat_max": max(pr.rhat.values()),
            "ess_bulk_min": min(pr.ess_bulk.values()), "predictive_p": float(check["p_value"]),
-           "posterior_edge": ";".join(f"{n}:{side}" for n, side in pr.at_edge.items())}
+           "predictive_p_se": float(check["p_value_se"]), "posterior_edge": ";".join(f"{n}:{side}" for n, side in pr.at_edge.items())}
     for name in list(pr.names) + (["mean_tilt"] if "mean_tilt" in pr.q50 else []):
         out[f"{name}_q05"], out[f"{name}_q50"], out[f"{name}_q95"] = pr.q05[name], pr.q50[name], pr.q95[name]
     for j, a in enumerate(angles):

@@ -13,8 +13,12 @@ the CRN evaluation and independent tracer runs (fresh generator arrays and rays,
 seed) at `SPREAD_THETA` (`seed_spread`) — the error of one finite tile and ray count against
 another realisation, including the transport's bias. The likelihood uses the same errors' heavy-tailed,
 regional model (`EmulatorError`: Student-t, ν ≈ 2.4, scale falling about fivefold from the smoothest
-to the roughest platelets) plus the run-to-run spread as a normal term whose scale varies over the box,
-fitted to the emulator's misses against `INDEPENDENT_RUNS` independent tracer runs (`residual_log_density`).
+to the roughest platelets) plus the **run-to-run terms** (`RunToRun`), fitted to the emulator's misses against
+`INDEPENDENT_RUNS` independent tracer runs: the CRN tracer's bias against fresh arrays, linear over the box
+(the transported tilts of one reference array are not de-overlapped again, so the CRN tracer is brighter at
+45–110° where the tilt law is wide), which the emulator subtracts from its prediction, and a normal spread
+whose scale varies over the box, to which the likelihood adds the fitted bias's own variance
+(`residual_log_density`). The emulator thus predicts what an independent run, a measured panel, gives.
 
 One GP per output angle. "tracer-emulator-wide" is built over the six MA98 in-plane angles of 45°
 illumination (−15° traced in its own pass, `TracerSettings.extra_aspecular`) and gives the standard
@@ -40,9 +44,9 @@ from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerS
 SPREAD_THETA = ((2.0, 1.5, 0.06, 0.7), (4.0, 2.5, 0.09, 0.5))
 SPREAD_SEEDS = (101, 102, 103, 104, 105)
 #: Independent tracer runs that judge the emulator as a measured panel would (a Latin hypercube of the box,
-#: one fresh array and ray seed each): the run-to-run spread the likelihood adds to the emulator's own error law
-#: is fitted to the emulator's misses there (`fit_added_spread`: normal, with a scale that varies over the box).
-INDEPENDENT_RUNS, INDEPENDENT_SEED0 = 24, 2000
+#: one fresh array and ray seed each, in Latin hypercubes of `INDEPENDENT_BATCH` runs cached one by one): the
+#: CRN tracer's bias and the run-to-run spread are fitted to the emulator's misses there (`fit_run_to_run`).
+INDEPENDENT_RUNS, INDEPENDENT_SEED0, INDEPENDENT_BATCH = 96, 2000, 24
 
 
 def tracer_emulator(
@@ -78,10 +82,10 @@ def tracer_emulator(
         n_train, n_test, seed, batch: design of `build_emulator`.
         spread_theta, spread_seeds: where and with which seeds the seed-to-seed spread is measured
             (None: not measured, `error_sd` is the cross-validated RMS alone, and no independent runs).
-        independent: independent tracer runs (fresh arrays and rays, seeds 2000 + i) at a Latin hypercube
-            of the box; the run-to-run spread that the likelihood adds to the emulator's cross-validated
-            error law is fitted to the emulator's misses against them, with a scale that varies over the box
-            (0: the seed spread at `spread_theta`, one number per angle).
+        independent: independent tracer runs (fresh arrays and rays, seeds 2000 + i) at Latin hypercubes
+            of the box; the CRN tracer's bias (subtracted from the prediction) and the run-to-run spread
+            (added to the likelihood's error law) are fitted to the emulator's misses against them, over the box
+            (`fit_run_to_run`; 0: no bias, the seed spread at `spread_theta`, one number per angle).
         progress: progress bar over the design and one line per tracer run.
         analytic_mean: physics-informed GP (default): the analytic single-scatter model
             (`AnalyticForward`, diffuse 0) is the linear prior mean per angle and its L* at every
@@ -136,17 +140,26 @@ def tracer_emulator(
 
 
 def _independent_check(em, model, fn, spec, n: int, seed: int, cache_dir) -> dict:
-    """The emulator against `n` independent tracer runs at a Latin hypercube of its box, and the run-to-run
-    spread (`fit_added_spread`) that its cross-validated error law needs to hold those misses."""
+    """The emulator against `n` independent tracer runs at Latin hypercubes of its box, and the run-to-run terms
+    (`fit_run_to_run`: the CRN tracer's bias, the spread) that its cross-validated error law needs to hold those misses."""
     from ._emulator import _lhs
-    from ._error_model import fit_added_spread
+    from ._error_model import fit_run_to_run
 
-    z = _lhs(n, len(spec), seed + 7)
+    z, runs = [], []
+    for b in range(-(-n // INDEPENDENT_BATCH)):  # Latin hypercubes of INDEPENDENT_BATCH runs, each cached on its own
+        k = min(INDEPENDENT_BATCH, n - b * INDEPENDENT_BATCH)
+        z.append(_lhs(k, len(spec), seed + 7 + b))
+        seeds = [INDEPENDENT_SEED0 + b * INDEPENDENT_BATCH + i for i in range(k)]
+        runs.append(independent_runs(fn, np.asarray(model.full(np.asarray(spec.from_unit(z[-1])))), seeds, cache_dir=cache_dir)["L"])
+    z, runs = np.concatenate(z), np.concatenate(runs)
+    made = np.all(np.isfinite(runs), axis=1)  # a θ whose platelets cannot fit the film has no array
+    z, runs = z[made], runs[made]
     theta = np.asarray(spec.from_unit(z))
-    runs = independent_runs(fn, np.asarray(model.full(theta)), [INDEPENDENT_SEED0 + i for i in range(n)], cache_dir=cache_dir)
-    miss = np.asarray(em(theta)) - runs["L"]
-    sd, slope = fit_added_spread(em.error, z, miss)
-    return {"sd": sd, "slope": slope, "rms": np.sqrt(np.mean(miss**2, axis=0)), "max": np.max(np.abs(miss), axis=0), "n": n}
+    miss = np.asarray(em(theta)) - runs
+    term = fit_run_to_run(em.error, z, miss)
+    left = miss - np.asarray(term.mean(z))
+    return {"term": term, "rms": np.sqrt(np.mean(miss**2, axis=0)), "max": np.max(np.abs(miss), axis=0),
+            "rms_corrected": np.sqrt(np.mean(left**2, axis=0)), "n": int(made.sum()), "no_array": int(n - made.sum())}
 
 
 def _analytic_mean(angles, names, held):
@@ -173,9 +186,7 @@ def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, di
     class_ = _tracer_emulator_class()
     fields = {f.name: getattr(em, f.name) for f in dataclasses.fields(Emulator)}
     sd = () if spread is None else tuple(float(v) for v in np.asarray(spread["sd"]))
-    extra = {} if checked is None else {"spread_sd": tuple(float(v) for v in checked["sd"]),
-                                        "spread_slope": tuple(float(v) for v in checked["slope"])}
-    out = class_(**fields, seed_spread_sd=sd, **extra)
+    out = class_(**fields, seed_spread_sd=sd, run_to_run=None if checked is None else checked["term"])
     _INFO[em.key] = {
         "held_out_rms_crn": list(em.held_out_rms),
         "loo_rms_crn": list(em.held_out_loo_rms),
@@ -189,7 +200,12 @@ def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, di
         "error_sd": np.asarray(out.error_sd).tolist(),
         "independent_rms": None if checked is None else checked["rms"].tolist(),
         "independent_max": None if checked is None else checked["max"].tolist(),
+        "independent_rms_bias_corrected": None if checked is None else checked["rms_corrected"].tolist(),
+        "run_to_run_bias": None if checked is None else np.asarray(checked["term"].bias).tolist(),
+        "run_to_run_bias_se": None if checked is None else np.sqrt(np.diagonal(np.asarray(checked["term"].bias_cov), axis1=1, axis2=2)).T.tolist(),
+        "run_to_run_sd": None if checked is None else np.asarray(checked["term"].sd).tolist(),
         "independent_runs": 0 if checked is None else checked["n"],
+        "independent_no_array": 0 if checked is None else checked["no_array"],
         "build_seconds_this_call": build_seconds,
         "tracer_evaluations_this_call": evaluations,
         "key": em.key,
@@ -210,17 +226,17 @@ def _tracer_emulator_class():
         import equinox as eqx
 
         from ._emulator import Emulator
-        from ._error_model import regional_scale
+        from ._error_model import RunToRun
 
         class TracerEmulator(Emulator):
-            """GP emulator of the tracer; `error_sd` = sqrt(cross-validated RMS² + seed-to-seed spread²). The likelihood's
-            residual law is the GP's cross-validated `EmulatorError` plus the run-to-run spread as a normal term: fitted
-            over the box to the misses against independent tracer runs (`spread_sd`, `spread_slope`) where those were
-            made, else the seed spread at `SPREAD_THETA`."""
+            """GP emulator of the tracer; `error_sd` = sqrt(cross-validated RMS² + seed-to-seed spread²). Where independent
+            tracer runs were made (`run_to_run`, a `RunToRun`) it predicts what an independent run gives: the GP of the CRN
+            tracer minus the CRN tracer's bias fitted over the box, and the likelihood's residual law is the GP's
+            cross-validated `EmulatorError` plus the run-to-run spread and the bias's own uncertainty as a normal term;
+            without them, plus the seed spread at `SPREAD_THETA`."""
 
             seed_spread_sd: tuple = eqx.field(static=True, default=())
-            spread_sd: tuple = eqx.field(static=True, default=())
-            spread_slope: tuple = eqx.field(static=True, default=())
+            run_to_run: RunToRun | None = None
 
             @property
             def error_sd(self):
@@ -229,13 +245,19 @@ def _tracer_emulator_class():
                     return held
                 return np.sqrt(held**2 + np.asarray(self.seed_spread_sd) ** 2)
 
+            def evaluate(self, theta):
+                out = super().evaluate(theta)
+                if self.run_to_run is None:
+                    return out
+                return out - self.run_to_run.mean(self.unit_coordinates(theta))
+
             def _with_spread(self, var, theta):
-                """var + the run-to-run spread: fitted over the box where independent runs were made, else the
+                """var + the run-to-run terms: fitted over the box where independent runs were made, else the
                 seed spread (without an error law, error_sd already holds the spread)."""
                 if self.error is None:
                     return var
-                if self.spread_sd:
-                    return var + regional_scale(self.spread_sd, self.spread_slope, self.unit_coordinates(theta)) ** 2
+                if self.run_to_run is not None:
+                    return var + self.run_to_run.variance(self.unit_coordinates(theta))
                 return var + np.asarray(self.seed_spread_sd) ** 2 if self.seed_spread_sd else var
 
             def residual_log_density(self, r, var, theta):
@@ -245,14 +267,17 @@ def _tracer_emulator_class():
                 return super().sample_residual(rng, np.asarray(self._with_spread(var, theta)), theta)
 
             def fingerprint(self):
-                added = f",added={np.round(self.spread_sd, 6).tolist()}{np.round(self.spread_slope, 6).tolist()}" if self.spread_sd else ""
+                added = ""
+                if self.run_to_run is not None:
+                    t = self.run_to_run
+                    added = f",run_to_run={[np.round(np.asarray(v), 6).tolist() for v in (t.bias, t.sd, t.slope)]}"
                 return f"Tracer{super().fingerprint()},spread={self.seed_spread_sd}{added}"  # the GP fit too, as Emulator's
 
             def select(self, angles):
                 out = super().select(angles)
                 rows = [self.angles.index(a) for a in out.angles]
-                if self.spread_sd:
-                    out = dataclasses.replace(out, spread_sd=tuple(self.spread_sd[i] for i in rows))
+                if self.run_to_run is not None:
+                    out = dataclasses.replace(out, run_to_run=self.run_to_run.select(rows))
                 if not self.seed_spread_sd:
                     return out
                 return dataclasses.replace(out, seed_spread_sd=tuple(self.seed_spread_sd[i] for i in rows))
@@ -266,9 +291,12 @@ def tracer_info(emulator) -> dict:
     info = dict(_INFO[emulator.key])
     idx = [info["angles"].index(a) for a in emulator.angles]
     for k in ("held_out_rms_crn", "loo_rms_crn", "cv_rms_crn", "held_out_max_by_angle", "seed_spread_sd", "seed_sd_independent",
-              "error_sd", "independent_rms", "independent_max"):
+              "error_sd", "independent_rms", "independent_max", "independent_rms_bias_corrected", "run_to_run_sd"):
         if info[k]:
             info[k] = [info[k][i] for i in idx]
+    for k in ("run_to_run_bias", "run_to_run_bias_se"):  # (p + 1, m): the angles are the columns
+        if info[k]:
+            info[k] = [[row[i] for i in idx] for row in info[k]]
     for k in ("seed_spread_L", "seed_spread_L_crn"):
         if info[k] is not None:
             info[k] = np.asarray(info[k])[..., idx].tolist()
