@@ -106,7 +106,8 @@ def test_run_to_run_fit_recovers_a_bias_over_the_box_and_a_regional_spread():
     extra = rng.standard_normal((600, 2)) * sd * np.exp((z - 0.5) @ slope)[:, None]
     truth_mean = np.c_[np.ones(600), z - 0.5] @ bias
     term = fit_run_to_run(law, z, law.sample(rng, np.zeros((600, 2)), z) + extra + truth_mean)
-    se = np.sqrt(np.diagonal(np.asarray(term.bias_cov), axis1=1, axis2=2)).T
+    se = np.asarray(term.bias_se)
+    np.testing.assert_allclose(se[:, 1] ** 2, np.diag(np.asarray(term.bias_cov)[1]))  # the marginal SDs of the covariance
     assert np.all(np.abs(np.asarray(term.bias) - bias) < 3.5 * se), (term.bias, se)
     assert np.all(se < 0.6)
     np.testing.assert_allclose(term.sd, sd, rtol=0.2)
@@ -120,7 +121,7 @@ def test_run_to_run_fit_recovers_a_bias_over_the_box_and_a_regional_spread():
     np.testing.assert_allclose(np.asarray(picked.mean(jnp.asarray(z[:3]))), np.asarray(term.mean(jnp.asarray(z[:3])))[:, [1]])
     # without a bias in the data, none is found beyond its errors
     term0 = fit_run_to_run(law, z, law.sample(rng, np.zeros((600, 2)), z) + extra)
-    se0 = np.sqrt(np.diagonal(np.asarray(term0.bias_cov), axis1=1, axis2=2)).T
+    se0 = np.asarray(term0.bias_se)
     assert np.all(np.abs(np.asarray(term0.bias)) < 3.5 * se0)
     with pytest.raises(ValueError, match="must be finite"):
         fit_run_to_run(law, z, np.full((600, 2), np.nan))

@@ -168,6 +168,11 @@ class RunToRun(eqx.Module):
     sd: Float[Array, " m"]
     slope: Float[Array, " p"]
 
+    @property
+    def bias_se(self) -> Float[Array, "q m"]:
+        """Standard errors of `bias` (its coefficients' marginal SDs), laid out as `bias`."""
+        return jnp.sqrt(jnp.diagonal(self.bias_cov, axis1=1, axis2=2)).T
+
     def mean(self, z: Float[Array, "n p"]) -> Float[Array, "n m"]:
         """The bias (emulator of the CRN tracer − independent run) at unit-cube points z."""
         return _design(z) @ self.bias

@@ -145,16 +145,16 @@ def _independent_check(em, model, fn, spec, n: int, seed: int, cache_dir) -> dic
     from ._emulator import _lhs
     from ._error_model import fit_run_to_run
 
-    z, runs = [], []
+    z, theta, runs = [], [], []
     for b in range(-(-n // INDEPENDENT_BATCH)):  # Latin hypercubes of INDEPENDENT_BATCH runs, each cached on its own
         k = min(INDEPENDENT_BATCH, n - b * INDEPENDENT_BATCH)
         z.append(_lhs(k, len(spec), seed + 7 + b))
+        theta.append(np.asarray(spec.from_unit(z[-1])))
         seeds = [INDEPENDENT_SEED0 + b * INDEPENDENT_BATCH + i for i in range(k)]
-        runs.append(independent_runs(fn, np.asarray(model.full(np.asarray(spec.from_unit(z[-1])))), seeds, cache_dir=cache_dir)["L"])
-    z, runs = np.concatenate(z), np.concatenate(runs)
+        runs.append(independent_runs(fn, np.asarray(model.full(theta[-1])), seeds, cache_dir=cache_dir)["L"])
+    z, theta, runs = np.concatenate(z), np.concatenate(theta), np.concatenate(runs)
     made = np.all(np.isfinite(runs), axis=1)  # a θ whose platelets cannot fit the film has no array
-    z, runs = z[made], runs[made]
-    theta = np.asarray(spec.from_unit(z))
+    z, theta, runs = z[made], theta[made], runs[made]
     miss = np.asarray(em(theta)) - runs
     term = fit_run_to_run(em.error, z, miss)
     left = miss - np.asarray(term.mean(z))
@@ -202,7 +202,7 @@ def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, di
         "independent_max": None if checked is None else checked["max"].tolist(),
         "independent_rms_bias_corrected": None if checked is None else checked["rms_corrected"].tolist(),
         "run_to_run_bias": None if checked is None else np.asarray(checked["term"].bias).tolist(),
-        "run_to_run_bias_se": None if checked is None else np.sqrt(np.diagonal(np.asarray(checked["term"].bias_cov), axis1=1, axis2=2)).T.tolist(),
+        "run_to_run_bias_se": None if checked is None else np.asarray(checked["term"].bias_se).tolist(),
         "run_to_run_sd": None if checked is None else np.asarray(checked["term"].sd).tolist(),
         "independent_runs": 0 if checked is None else checked["n"],
         "independent_no_array": 0 if checked is None else checked["no_array"],
