@@ -63,6 +63,7 @@ from paintjax import (  # noqa: E402
     sample_posterior,
 )
 from paintjax.inverse import LogPosterior  # noqa: E402
+from paintjax.microstructure import PlateletFitError  # noqa: E402
 
 OUT = Path(__file__).parent / "output" / "coverage"
 TRACER_FORWARDS = ("tracer-emulator", "tracer-emulator-wide")
@@ -109,7 +110,7 @@ def clean_curve(forward_name: str, options: dict, i: int, t, parts=None) -> dict
     inputs = {"tracer": direct.settings.identity(), "angles": list(direct.angles), "theta": t.tolist(), "seed": 1000 + i, "mode": "rsa"}
     try:
         arrays, _ = cached_arrays("coverage-clean-curve", inputs, run_tracer, folder=parts)
-    except ValueError as err:  # no array for this tilt law in this film
+    except PlateletFitError as err:  # no array for this tilt law in this film
         return {"error": str(err)}
     return {"clean": arrays["clean"], "clean_se": arrays["clean_se"], "seconds": direct.seconds - t0}
 

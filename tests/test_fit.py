@@ -315,3 +315,36 @@ def test_emulator_design_on_a_dask_cluster_matches_the_serial_design(tmp_path):
         np.testing.assert_array_equal(da["Yt"], db["Yt"])
     x = np.tile([[2.0, 1.5]], (16, 1))
     np.testing.assert_allclose(np.asarray(spread(x)), np.asarray(serial(x)), rtol=1e-12)
+
+
+def test_emulator_refinement_reuses_the_base_design_and_samples_the_sub_box(tmp_path):
+    """`refine`: the base design is read from its own file and only the added runs are made, all inside the
+    sub-box (unit coordinates) of the named parameter; the refined emulator has its own key, reads from its cache,
+    and follows a map that is steep there better than the base emulator (held-out points in that corner);
+    a bad sub-box is an error that names it."""
+    spec = make_spec(("shape", "scale"), {"shape": (1.0, 4.0), "scale": (1.0, 4.0)})
+    calls = []
+
+    def fn(x):  # steep in the low-shape corner, as L* is in σ where platelets are smooth
+        calls.append(np.array(x))
+        s = np.log(x[:, :1] / 1.0) / np.log(4.0)
+        return 50.0 + 40.0 * np.exp(-((s / 0.12) ** 2)) * np.array([1.0, 0.8, 0.6, 0.4, 0.2]) + 2.0 * x[:, 1:2]
+
+    kw = dict(source="steep-corner-v1", n_train=16, n_test=8, seed=0, cache_dir=tmp_path, batch=32)
+    base = build_emulator(fn, spec, **kw)
+    n_base = sum(len(c) for c in calls)
+    refined = build_emulator(fn, spec, **kw, refine={"shape": (0.0, 0.3)}, n_refine=16)
+    added = np.concatenate(calls)[n_base:]
+    assert len(added) == 16 and refined.key != base.key and refined.X.shape[0] == 32
+    z = np.asarray(spec.to_unit(added))
+    assert np.all(z[:, 0] <= 0.3 + 1e-12) and z[:, 1].min() < 0.2 and z[:, 1].max() > 0.8
+    again = build_emulator(fn, spec, **kw, refine={"shape": (0.0, 0.3)}, n_refine=16)
+    assert sum(len(c) for c in calls) == n_base + 16 and again.key == refined.key  # from its cache
+    test = np.asarray(spec.from_unit(np.random.default_rng(5).random((64, 2)) * [0.3, 1.0]))
+    truth = fn(test)
+    rms = lambda em: np.sqrt(np.mean((np.asarray(em(test)) - truth) ** 2))  # noqa: E731
+    print("held-out RMS in the corner: base", rms(base), "refined", rms(refined))
+    assert rms(refined) < 0.5 * rms(base), (rms(refined), rms(base))
+    for bad in ({"tau": (0.0, 0.3)}, {"shape": (0.4, 0.3)}, {"shape": (-0.1, 0.3)}):
+        with pytest.raises(ValueError, match="refine"):
+            build_emulator(fn, spec, **kw, refine=bad, n_refine=4)

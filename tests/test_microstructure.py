@@ -395,3 +395,13 @@ def test_boolean_array_bad_input_names_the_parameter(override, name):
     kw = dict(seed=0, count=10, tile=(40.0, 40.0), basecoat_thickness=20.0, width=4.0, thickness=0.5) | override
     with pytest.raises(ValueError, match=name):
         boolean_platelet_array(**kw)
+
+
+def test_platelets_that_cannot_fit_the_film_raise_a_named_error():
+    """A tilt law so steep that wide platelets cannot lie in a thin basecoat at any drawn orientation: no array
+    exists, and the error says so as its own type (a ValueError), which callers that skip such draws catch."""
+    from paintjax.microstructure import PlateletFitError
+
+    with pytest.raises(PlateletFitError, match="sizes/tilt: .* do not fit in the basecoat_thickness 3"):
+        generate_platelet_array(0, pvc=0.05, tilt=(20.0, 4.0), basecoat_thickness=3.0, tile=300.0, overlap_test="none")
+    assert issubclass(PlateletFitError, ValueError)

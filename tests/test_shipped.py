@@ -36,8 +36,9 @@ def test_shipped_emulator_matches_the_current_physics(tmp_path, monkeypatch):
     # the standard five: the same GPs (to rounding: XLA may order the sums differently for five rows and six)
     np.testing.assert_allclose(pred[:, 1:], np.asarray(em(theta)), rtol=1e-12, atol=0)
     np.testing.assert_array_equal(six.error_sd[1:], em.error_sd)
-    # at −15° it misses the held-out runs as the other GPs miss theirs (within 2 × error_sd: 87.5–100 % of
-    # them at the standard five, 92 % here; RMS 5.7 against error_sd 5.0, the worst 17.6 L* at σ ≈ 20 nm, nearly mirrors)
+    # at −15° it misses the held-out runs as the other GPs miss theirs (within 2 × error_sd: 87.5–95.8 % of
+    # them at the standard five, 92 % here; RMS 7.2 against error_sd 5.0 (these are CRN runs, and the emulator predicts an
+    # independent run: the CRN tracer's fitted bias is subtracted), the worst 23.1 L* at σ ≈ 21 nm, nearly mirrors)
     err = np.abs(pred[:, 0] - L[:, 0])
     assert np.median(err) < six.error_sd[0] and np.mean(err < 2 * six.error_sd[0]) > 0.85, (err, six.error_sd)
     assert np.sqrt(np.mean(err**2)) < 1.5 * six.error_sd[0]

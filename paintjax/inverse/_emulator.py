@@ -15,7 +15,7 @@ import json
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Literal
 
@@ -234,10 +234,41 @@ def _lhs(n: int, d: int, seed: int) -> np.ndarray:
     return qmc.LatinHypercube(d, seed=seed).random(n)
 
 
-def emulator_key(source: str, spec: ParameterSpec, n_train: int, n_test: int, seed: int) -> str:
-    """Content hash of everything that determines an emulator."""
+def emulator_key(source: str, spec: ParameterSpec, n_train: int, n_test: int, seed: int, refine=None, n_refine: int = 0) -> str:
+    """Content hash of everything that determines an emulator (without a refinement, the key of the base design alone)."""
     text = json.dumps([EMULATOR_VERSION, source, spec.fingerprint(), int(n_train), int(n_test), int(seed)])
-    return hashlib.sha256(text.encode()).hexdigest()[:20]
+    key = hashlib.sha256(text.encode()).hexdigest()[:20]
+    if refine and n_refine:
+        text = json.dumps([key, sorted((k, float(a), float(b)) for k, (a, b) in refine.items()), int(n_refine)])
+        key = hashlib.sha256(text.encode()).hexdigest()[:20]
+    return key
+
+
+def _check_refine(spec: ParameterSpec, refine, n_refine: int) -> dict:
+    """The refinement's sub-box in unit coordinates, checked ({} for none)."""
+    if not refine or not n_refine:
+        if n_refine < 0:
+            raise ValueError(f"n_refine must be >= 0, got {n_refine}")
+        return {}
+    if n_refine < 0:
+        raise ValueError(f"n_refine must be >= 0, got {n_refine}")
+    out = {}
+    for name, (lo, hi) in refine.items():
+        if name not in spec.names:
+            raise ValueError(f"refine names {name!r}, which is not one of the free parameters {spec.names}")
+        if not 0.0 <= float(lo) < float(hi) <= 1.0:
+            raise ValueError(f"refine[{name!r}] must be a unit-coordinate range 0 <= lo < hi <= 1, got ({lo}, {hi})")
+        out[name] = (float(lo), float(hi))
+    return out
+
+
+def _refine_design(spec: ParameterSpec, refine: dict, n: int, seed: int) -> np.ndarray:
+    """A scrambled Sobol design of n points in the sub-box `refine` (unit coordinates per named parameter, the others whole)."""
+    Z = _sobol(n, len(spec), seed)
+    for name, (lo, hi) in refine.items():
+        j = spec.names.index(name)
+        Z[:, j] = lo + (hi - lo) * Z[:, j]
+    return Z
 
 
 def _evaluate_design(fn, Z: np.ndarray, spec: ParameterSpec, batch: int, checkpoint: Path | None, progress: bool, client=None) -> np.ndarray:
@@ -298,6 +329,8 @@ def build_emulator(
     mean: "Restricted | None" = None,
     mean_features: Sequence[int] = (),
     client=None,
+    refine: Mapping[str, tuple[float, float]] | None = None,
+    n_refine: int = 0,
 ) -> Emulator:
     """Train (or load from cache) a GP emulator of `fn` over the box of `spec`.
 
@@ -326,6 +359,10 @@ def build_emulator(
         mean_features: output columns of `mean` used as GP inputs.
         client: a Dask `distributed.Client`: the design's batches run as tasks on its workers (`fn`
             must pickle; the tracer's `TracerLStar` becomes each worker's own shared instance).
+        refine, n_refine: a denser design where the map changes fastest: `n_refine` more training runs
+            (a scrambled Sobol sequence, seed + 2) in the sub-box `{name: (lo, hi)}` given in unit
+            coordinates of the named parameters (the others span the box). The base design is reused
+            from its own cache file (or shipped emulator) and only the added runs are made.
 
     Returns:
         An `Emulator` (a `ForwardModel` over `spec.names`).
@@ -342,7 +379,10 @@ def build_emulator(
     if not source:
         raise ValueError("source must identify fn (a string that changes with its behaviour) for the cache key")
     angles = tuple(float(a) for a in (STANDARD_ASPECULAR if aspecular_deg is None else aspecular_deg))
-    key = emulator_key(source, spec, n_train, n_test, seed)
+    refine = _check_refine(spec, refine, int(n_refine))
+    n_refine = int(n_refine) if refine else 0
+    key = emulator_key(source, spec, n_train, n_test, seed, refine, n_refine)
+    base_key = emulator_key(source, spec, n_train, n_test, seed)
     if cache_dir == "default":
         cache_dir = default_cache_dir() / "emulators"
     path = None if cache_dir is None else Path(cache_dir) / f"emulator-{key}.npz"
@@ -355,34 +395,60 @@ def build_emulator(
             raise ValueError(f"mean_features must be output columns in [0, {len(angles) - 1}], got {list(mean_features)}")
     mean_id = "none" if mean is None else f"{mean.fingerprint()}|features={list(mean_features)}"
     fit_id = f"v{EMULATOR_FIT_VERSION}|{mean_id}"
-    arrays = None
-    stored = None if path is None else shipped(path)  # the cache, else a shipped emulator of the same key
-    if stored is not None and stored.exists():
-        with np.load(stored) as d:
-            arrays = {k: np.array(d[k]) for k in d.files}
-        if str(arrays.get("fit_id", "")) == fit_id:
-            return _emulator_from_arrays(arrays, spec, angles, source, key, mean, mean_features)
-        if "Z" not in arrays and "X" in arrays:  # files of fit version 1 stored the design as X
-            arrays["Z"] = arrays["X"]
-        arrays = {k: arrays[k] for k in ("Z", "Y", "Zt", "Yt", "design_seconds") if k in arrays}  # re-fit the cached design
-    if arrays is None or "Z" not in arrays:
+    arrays, fitted = _stored_design(path, fit_id, n_train + n_refine)
+    if fitted:
+        return _emulator_from_arrays(arrays, spec, angles, source, key, mean, mean_features)
+    if arrays is None and n_refine:  # the base design from its own file (cache or shipped)
+        arrays, _ = _stored_design(None if path is None else path.with_name(f"emulator-{base_key}.npz"), None, n_train)
+    checkpoints = []
+
+    def evaluate(Z, name):
+        ckpt = None if path is None else path.with_name(f"emulator-{key}{name}.partial.npz")
+        checkpoints.append(ckpt)
+        Y = _evaluate_design(fn, Z, spec, batch, ckpt, progress, client)
+        if not np.all(np.isfinite(Y)):
+            raise ValueError("the forward callable returned non-finite L* on the design; narrow the parameter bounds")
+        return Y
+
+    if arrays is None:
         t0 = time.perf_counter()
         Z = _sobol(n_train, len(spec), seed)
         Zt = _lhs(n_test, len(spec), seed + 1)
-        ckpt = None if path is None else path.with_suffix(".partial.npz")
-        Yall = _evaluate_design(fn, np.concatenate([Z, Zt]), spec, batch, ckpt, progress, client)
-        if not np.all(np.isfinite(Yall)):
-            raise ValueError("the forward callable returned non-finite L* on the design; narrow the parameter bounds")
+        Yall = evaluate(np.concatenate([Z, Zt]), "")
         arrays = dict(Z=Z, Y=Yall[:n_train], Zt=Zt, Yt=Yall[n_train:], design_seconds=time.perf_counter() - t0)
-    else:
-        ckpt = None
+    if arrays["Z"].shape[0] < n_train + n_refine:  # the refinement's runs
+        t0 = time.perf_counter()
+        Zr = _refine_design(spec, refine, n_refine, seed + 2)
+        Yr = evaluate(Zr, "-refine")
+        arrays |= dict(Z=np.concatenate([arrays["Z"], Zr]), Y=np.concatenate([arrays["Y"], Yr]),
+                       design_seconds=float(arrays["design_seconds"]) + time.perf_counter() - t0)
     arrays = arrays | fit_emulator(arrays["Z"], arrays["Y"], arrays["Zt"], arrays["Yt"], spec, mean, mean_features, angles, source, key)
     arrays["fit_id"] = np.array(fit_id)
     if path is not None:
         atomic_savez(path, **arrays)
-        if ckpt is not None and ckpt.exists():
-            ckpt.unlink()
+        for ckpt in checkpoints:
+            if ckpt is not None and ckpt.exists():
+                ckpt.unlink()
     return _emulator_from_arrays(arrays, spec, angles, source, key, mean, mean_features)
+
+
+def _stored_design(path: Path | None, fit_id: str | None, n_design: int) -> tuple[dict | None, bool]:
+    """A stored emulator file (the cache, else a shipped one of the same name): (all of it, True) where its fit
+    is `fit_id` on `n_design` training runs, else (its design Z, Y, Zt, Yt to re-fit, False); (None, False) where
+    there is none. A design of fewer runs (the base of a refinement) is returned too: the caller adds the rest."""
+    stored = None if path is None else shipped(path)
+    if stored is None or not stored.exists():
+        return None, False
+    with np.load(stored) as d:
+        arrays = {k: np.array(d[k]) for k in d.files}
+    if "Z" not in arrays and "X" in arrays:  # files of fit version 1 stored the design as X
+        arrays["Z"] = arrays["X"]
+    if "Z" not in arrays:
+        return None, False
+    if fit_id is not None and str(arrays.get("fit_id", "")) == fit_id and arrays["Z"].shape[0] == n_design:
+        return arrays, True
+    arrays = {k: arrays[k] for k in ("Z", "Y", "Zt", "Yt", "design_seconds") if k in arrays}
+    return {k: v[:n_design] if k in ("Z", "Y") else v for k, v in arrays.items()}, False
 
 
 def _mean_inputs(spec, mean, mean_features, Z):

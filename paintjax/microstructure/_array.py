@@ -66,6 +66,10 @@ OVERLAP_TESTS = ("sat", "midplane", "none")
 _MAX_ORIENTATION_ROUNDS = 1000
 
 
+class PlateletFitError(ValueError):
+    """Platelets of these sizes and this tilt law cannot fit in the basecoat at any drawn orientation: no array exists."""
+
+
 class PlateletArray(eqx.Module):
     """Square platelets (rectangular prisms) in a laterally periodic basecoat tile.
 
@@ -338,11 +342,9 @@ def generate_platelet_array(
         raise ValueError(f"pvc {pvc_f} × tile volume {volume:.4g} µm³ is less than half a platelet; raise pvc or tile")
 
     # Orientations, redrawn where the box cannot fit in the film.
-    def draw_orientations(m):
+    def draw_orientations(m):  # tilt, azimuth, rotation about the normal
         td = _sample_tilt_np(tilt, rng, m)
-        az = 2 * np.pi * rng.random(m)
-        rot = 0.5 * np.pi * rng.random(m)
-        return _frames(td, az, rot)
+        return _frames(td, 2 * np.pi * rng.random(m), 0.5 * np.pi * rng.random(m))
 
     normals, axes_u = draw_orientations(n)
     hz = _vertical_half_extent(normals, axes_u, widths, t)
@@ -356,10 +358,8 @@ def generate_platelet_array(
         hz[misfit] = _vertical_half_extent(nn, uu, widths[misfit], t)
         misfit = misfit[2 * hz[misfit] > h_b]
     else:
-        raise ValueError(
-            f"sizes/tilt: {misfit.size} platelet(s) up to {widths[misfit].max():.3g} µm wide do not fit in the "
-            f"basecoat_thickness {h_b} µm at any of {_MAX_ORIENTATION_ROUNDS} drawn orientations"
-        )
+        raise PlateletFitError(f"sizes/tilt: {misfit.size} platelet(s) up to {widths[misfit].max():.3g} µm wide do not fit in the "
+                               f"basecoat_thickness {h_b} µm at any of {_MAX_ORIENTATION_ROUNDS} drawn orientations")
 
     # First positions: uniform in the tile, box inside [0, h_b].
     u = rng.random((n, 3))
