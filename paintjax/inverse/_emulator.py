@@ -421,7 +421,7 @@ def build_emulator(
         Zr = _refine_design(spec, refine, n_refine, seed + 2)
         Yr = evaluate(Zr, "-refine")
         arrays |= dict(Z=np.concatenate([arrays["Z"], Zr]), Y=np.concatenate([arrays["Y"], Yr]),
-                       design_seconds=float(arrays["design_seconds"]) + time.perf_counter() - t0)
+                       design_seconds=float(arrays.get("design_seconds", 0.0)) + time.perf_counter() - t0)
     arrays = arrays | fit_emulator(arrays["Z"], arrays["Y"], arrays["Zt"], arrays["Yt"], spec, mean, mean_features, angles, source, key)
     arrays["fit_id"] = np.array(fit_id)
     if path is not None:
