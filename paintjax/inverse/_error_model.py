@@ -1,7 +1,7 @@
 """A heavy-tailed, regional model of an emulator's own error, fitted to its out-of-sample errors.
 
 An emulator misses the map it emulates by e = L*_emulator − L*_direct. Its cross-validated errors
-(leave-one-out and held-out) are far from Gaussian: the tracer emulators' are Student-t with ν ≈ 2.4,
+(leave-one-out and held-out) are far from Gaussian: the tracer emulators' are Student-t with ν ≈ 2.4–4.2,
 and about five times larger at the smoothest platelets than at the roughest. `EmulatorError` models
 e_j(θ) at angle j as Student-t with ν degrees of freedom and a scale that varies log-linearly over the
 box,

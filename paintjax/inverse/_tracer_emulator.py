@@ -12,7 +12,7 @@ leave-one-out errors; `Emulator.error_sd`) combined in quadrature with the **CRN
 the CRN evaluation and independent tracer runs (fresh generator arrays and rays, seeds ≠ the CRN
 seed) at `SPREAD_THETA` (`seed_spread`) — the error of one finite tile and ray count against
 another realisation, including the transport's bias. The likelihood uses the same errors' heavy-tailed,
-regional model (`EmulatorError`: Student-t, ν ≈ 2.4, scale falling about fivefold from the smoothest
+regional model (`EmulatorError`: Student-t, ν ≈ 4 for the shipped wide emulator, scale falling about sixfold from the smoothest
 to the roughest platelets) plus the **run-to-run terms** (`RunToRun`), fitted to the emulator's misses against
 `INDEPENDENT_RUNS` independent tracer runs: the CRN tracer's bias against fresh arrays, linear over the box
 (the transported tilts of one reference array are not de-overlapped again, so the CRN tracer is brighter at
