@@ -75,7 +75,7 @@ def test_maximum_likelihood_recovers_df_scales_and_slope():
 
 def test_shipped_tracer_emulator_errors_are_heavy_tailed_and_regional(tmp_path, monkeypatch):
     """The wide emulator's cross-validated errors: Student-t with few degrees of freedom (ν = 4.2 for the shipped
-    emulator with its refined design, 2.95 before it; a normal would put 0.3 % of them beyond 3 RMS, not 2–3 %),
+    emulator with its refined design, 2.95 before it; a normal would put 0.3 % of them beyond 3 RMS, not 1.6 %),
     their scale falling with σ (smooth platelets are the hard ones), and the t law explains its held-out tracer runs
     better than the normal law with the same RMS."""
     from paintjax._cache import SHIPPED_DIR

@@ -246,12 +246,10 @@ def emulator_key(source: str, spec: ParameterSpec, n_train: int, n_test: int, se
 
 def _check_refine(spec: ParameterSpec, refine, n_refine: int) -> dict:
     """The refinement's sub-box in unit coordinates, checked ({} for none)."""
-    if not refine or not n_refine:
-        if n_refine < 0:
-            raise ValueError(f"n_refine must be >= 0, got {n_refine}")
-        return {}
     if n_refine < 0:
         raise ValueError(f"n_refine must be >= 0, got {n_refine}")
+    if not refine or not n_refine:
+        return {}
     out = {}
     for name, (lo, hi) in refine.items():
         if name not in spec.names:
