@@ -73,8 +73,8 @@ class _Variant(ForwardModel):
     def _at(self, theta):
         return theta if self.theta0 is None else jnp.broadcast_to(self.theta0, jnp.shape(theta))
 
-    def residual_log_density(self, r, var, theta):
-        return self.emulator.residual_log_density(r, var, self._at(theta))
+    def residual_log_density(self, r, var, theta, have=None):
+        return self.emulator.residual_log_density(r, var, self._at(theta), have)
 
     def sample_residual(self, rng, var, theta):
         return self.emulator.sample_residual(rng, var, np.asarray(self._at(jnp.asarray(theta))))

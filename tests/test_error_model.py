@@ -1,7 +1,8 @@
-"""The emulators' heavy-tailed, regional error model (`paintjax.inverse._error_model`) against closed forms:
-the scale mixture is the Student-t where no normal term is added, the normal where ν = ∞, the numerical
-convolution of the two otherwise; its draws follow its density; maximum likelihood recovers a known ν
-and slope; and the shipped tracer emulator's errors are heavy-tailed and regional, as measured."""
+"""The emulators' heavy-tailed, regional, correlated error model (`paintjax.inverse._error_model`) against
+closed forms: the scale mixture is the (multivariate) Student-t where no normal term is added, the normal
+where ν = ∞, the numerical convolution of the two otherwise; angles left out are marginalised; its draws
+follow its density and correlation; maximum likelihood recovers a known ν, slope and correlation; and the
+shipped tracer emulator's errors are heavy-tailed, regional and joint between the angles, as measured."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from paintjax.inverse import EmulatorError, fit_emulator_error
 def _density(model, r, var, z=0.5):
     r = np.atleast_1d(np.asarray(r, float))[:, None]
     out = model.residual_log_density(jnp.asarray(r), jnp.full(r.shape, float(var)), jnp.full((r.shape[0], 1), z))
-    return np.asarray(out)[:, 0]
+    return np.asarray(out)
 
 
 @pytest.mark.parametrize("df", [1.0, 2.4, 5.0, 30.0])
@@ -42,40 +43,106 @@ def test_infinite_df_is_normal_and_the_slope_scales_over_the_box():
     model = EmulatorError([1.5], [0.0, -2.0], np.inf)
     r = np.linspace(-10.0, 10.0, 41)[:, None]
     z = jnp.asarray(np.tile([[0.3, 0.9]], (41, 1)))  # scale 1.5·exp(−2·(0.9 − 0.5)) = 1.5 e^−0.8
-    got = np.asarray(model.residual_log_density(jnp.asarray(r), jnp.full(r.shape, 0.25), z))[:, 0]
+    got = np.asarray(model.residual_log_density(jnp.asarray(r), jnp.full(r.shape, 0.25), z))
     np.testing.assert_allclose(got, stats.norm.logpdf(r[:, 0], scale=np.sqrt(0.25 + (1.5 * np.exp(-0.8)) ** 2)), rtol=1e-12)
     with pytest.raises(ValueError, match="df must be >= 1"):
         EmulatorError([1.0], [0.0], 0.5)
 
 
+_R3 = np.array([[1.0, 0.5, -0.3], [0.5, 1.0, 0.2], [-0.3, 0.2, 1.0]])
+
+
+@pytest.mark.parametrize("df", [2.4, 8.0])
+def test_joint_law_is_the_multivariate_t_and_the_convolution_with_a_normal(df):
+    """Three correlated angles: without normal terms the density is the multivariate Student-t of shape D R D
+    (scipy), with them the integral over the mixing variable of the normal of covariance V + w D R D (quadrature)."""
+    from scipy import integrate
+
+    scale, slope = np.array([2.0, 1.0, 0.5]), np.array([0.8])
+    model = EmulatorError(scale, slope, df, _R3)
+    rng = np.random.default_rng(1)
+    r, z = rng.standard_t(3.0, (6, 3)) * 3.0, rng.random((6, 1))
+    c = scale * np.exp(0.8 * (z - 0.5))
+    got = np.asarray(model.residual_log_density(jnp.asarray(r), jnp.zeros((6, 3)), jnp.asarray(z)))
+    want = [stats.multivariate_t.logpdf(r[i], shape=np.outer(c[i], c[i]) * _R3, df=df) for i in range(6)]
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    var = np.array([0.3, 0.05, 0.6])
+    got = np.asarray(model.residual_log_density(jnp.asarray(r), jnp.broadcast_to(var, (6, 3)), jnp.asarray(z)))
+    law = stats.invgamma(df / 2.0, scale=df / 2.0)
+    for i in range(6):
+        def integrand(logw):
+            w = np.exp(logw)
+            return stats.multivariate_normal.pdf(r[i], cov=np.diag(var) + w * np.outer(c[i], c[i]) * _R3) * law.pdf(w) * w
+        want = integrate.quad(integrand, -30.0, 30.0, limit=400, epsabs=0.0, epsrel=1e-10)[0]
+        assert got[i] == pytest.approx(np.log(want), abs=1e-6), i
+    normal = EmulatorError(scale, slope, np.inf, _R3)
+    got = np.asarray(normal.residual_log_density(jnp.asarray(r), jnp.broadcast_to(var, (6, 3)), jnp.asarray(z)))
+    want = [stats.multivariate_normal.logpdf(r[i], cov=np.diag(var) + np.outer(c[i], c[i]) * _R3) for i in range(6)]
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+@pytest.mark.parametrize("df", [3.0, np.inf])
+def test_angles_left_out_are_marginalised(df):
+    """The density over the angles in `have` is the density of the law restricted to those angles (`select`),
+    row by row, whatever the values at the angles left out."""
+    model = EmulatorError([2.0, 1.0, 0.5], [0.3], df, _R3)
+    rng = np.random.default_rng(2)
+    r, z, var = rng.normal(0.0, 2.0, (4, 3)), rng.random((4, 1)), np.full((4, 3), 0.09)
+    have = np.array([[True, False, True], [False, True, True], [True, True, True], [False, False, True]])
+    got = np.asarray(model.residual_log_density(jnp.asarray(r), jnp.asarray(var), jnp.asarray(z), jnp.asarray(have)))
+    for i in range(4):
+        rows = np.flatnonzero(have[i])
+        want = model.select(rows).residual_log_density(jnp.asarray(r[i:i + 1, rows]), jnp.asarray(var[i:i + 1, rows]), jnp.asarray(z[i:i + 1]))
+        assert got[i] == pytest.approx(float(want[0]), abs=1e-10), i
+    moved = np.where(have, r, 1e3)
+    np.testing.assert_allclose(model.residual_log_density(jnp.asarray(moved), jnp.asarray(var), jnp.asarray(z), jnp.asarray(have)), got)
+
+
+def test_joint_draws_have_the_correlation_and_the_shared_tail():
+    """Draws share one mixing variable per row: their correlation is R (a t law's, ν > 2), and a row large at one
+    angle is large at the others; with R = I, independent t draws would show no such dependence."""
+    model = EmulatorError([1.0, 1.0, 1.0], [0.0], 6.0, _R3)
+    rng = np.random.default_rng(7)
+    e = model.sample(rng, np.zeros((200000, 3)), np.full((200000, 1), 0.5))
+    np.testing.assert_allclose(np.corrcoef(e.T), _R3, atol=0.02)
+    indep = EmulatorError([1.0, 1.0, 1.0], [0.0], 6.0).sample(rng, np.zeros((200000, 3)), np.full((200000, 1), 0.5))
+    assert abs(np.corrcoef(indep.T)[0, 1]) < 0.02
+    assert np.corrcoef(np.abs(indep).T)[0, 1] > 0.1  # |e| share the mixing variable: dependent though uncorrelated
+
+
 def test_draws_follow_the_density():
     model = EmulatorError([2.0], [0.0], 2.4)
     rng = np.random.default_rng(3)
-    draws = model.sample(rng, np.full((20000, 1), 0.49), np.full((20000, 1), 0.5))[:, 0]
+    draws = model.sample(rng, np.full((20000, 1), 0.49), np.full((20000, 1), 0.5))[:, 0]  # one angle: the t law
     grid = np.linspace(-4000.0, 4000.0, 800001)
     cdf = np.cumsum(np.exp(_density(model, grid, 0.49))) * (grid[1] - grid[0])
     ks = stats.kstest(draws, lambda v: np.interp(v, grid, cdf))
     assert ks.pvalue > 1e-3, ks
 
 
-def test_maximum_likelihood_recovers_df_scales_and_slope():
+def test_maximum_likelihood_recovers_df_scales_slope_and_correlation():
     rng = np.random.default_rng(0)
     z = rng.random((720, 4))
     scale, slope = np.array([2.0, 1.7, 1.2, 1.0, 1.3, 1.4]), np.array([0.4, 0.5, -1.7, 0.0])
-    e = stats.t.rvs(2.4, size=(720, 6), random_state=rng) * scale * np.exp((z - 0.5) @ slope)[:, None]
+    R = np.eye(6)
+    R[np.arange(5), np.arange(1, 6)] = R[np.arange(1, 6), np.arange(5)] = [0.6, -0.4, 0.3, 0.5, -0.2]
+    truth = EmulatorError(scale, slope, 2.4, R)
+    e = truth.sample(rng, np.zeros((720, 6)), z)
     fit = fit_emulator_error(z, e)
     assert fit.df == pytest.approx(2.4, rel=0.2)
     np.testing.assert_allclose(np.asarray(fit.scale), scale, rtol=0.15)
     np.testing.assert_allclose(np.asarray(fit.slope), slope, atol=0.3)
+    np.testing.assert_allclose(np.asarray(fit.correlation), R, atol=0.1)
     normal = fit_emulator_error(z, rng.standard_normal((720, 6)))
     assert normal.df > 30 and np.all(np.abs(np.asarray(normal.slope)) < 0.3)
+    assert np.max(np.abs(np.asarray(normal.correlation) - np.eye(6))) < 0.15
     with pytest.raises(ValueError, match="must be finite"):
         fit_emulator_error(z, np.full((720, 6), np.nan))
 
 
 def test_shipped_tracer_emulator_errors_are_heavy_tailed_and_regional(tmp_path, monkeypatch):
-    """The wide emulator's cross-validated errors: Student-t with few degrees of freedom (ν = 4.2 for the shipped
-    emulator with its refined design, 2.95 before it; a normal would put 0.3 % of them beyond 3 RMS, not 1.6 %),
+    """The wide emulator's cross-validated errors: Student-t with few degrees of freedom (ν = 5.1 for the shipped
+    emulator with its refined design and the joint law, 4.2 with independent angles, 2.95 before the refinement; a normal would put 0.3 % of them beyond 3 RMS, not 1.6 %),
     their scale falling with σ (smooth platelets are the hard ones), and the t law explains its held-out tracer runs
     better than the normal law with the same RMS."""
     from paintjax._cache import SHIPPED_DIR
@@ -96,8 +163,8 @@ def test_shipped_tracer_emulator_errors_are_heavy_tailed_and_regional(tmp_path, 
 
 
 def test_run_to_run_fit_recovers_a_bias_over_the_box_and_a_regional_spread():
-    """Residuals = the law's draws + a bias linear over the box + a normal term whose scale varies over the box:
-    the fit finds the bias within its stated standard errors, and the spread."""
+    """Residuals = the law's draws (its two angles correlated 0.6) + a bias linear over the box + a normal term whose
+    scale varies over the box: the fit finds the bias within its stated standard errors, the spread and the correlation."""
     from paintjax.inverse._error_model import fit_run_to_run
 
     law = EmulatorError([1.0, 1.5], [0.0, 0.0], 2.4)
@@ -107,7 +174,9 @@ def test_run_to_run_fit_recovers_a_bias_over_the_box_and_a_regional_spread():
     bias = np.array([[1.0, -0.5], [3.0, 0.0], [0.0, -2.0]])  # centre, then per unit of z₁ and z₂; one column per angle
     extra = rng.standard_normal((600, 2)) * sd * np.exp((z - 0.5) @ slope)[:, None]
     truth_mean = np.c_[np.ones(600), z - 0.5] @ bias
-    term = fit_run_to_run(law, z, law.sample(rng, np.zeros((600, 2)), z) + extra + truth_mean)
+    drawn = law.with_correlation([[1.0, 0.6], [0.6, 1.0]])
+    term = fit_run_to_run(law, z, drawn.sample(rng, np.zeros((600, 2)), z) + extra + truth_mean)
+    assert float(term.correlation[0, 1]) == pytest.approx(0.6, abs=0.15)
     se = np.asarray(term.bias_se)
     np.testing.assert_allclose(se[:, 1] ** 2, np.diag(np.asarray(term.bias_cov)[1]))  # the marginal SDs of the covariance
     assert np.all(np.abs(np.asarray(term.bias) - bias) < 3.5 * se), (term.bias, se)
@@ -125,5 +194,6 @@ def test_run_to_run_fit_recovers_a_bias_over_the_box_and_a_regional_spread():
     term0 = fit_run_to_run(law, z, law.sample(rng, np.zeros((600, 2)), z) + extra)
     se0 = np.asarray(term0.bias_se)
     assert np.all(np.abs(np.asarray(term0.bias)) < 3.5 * se0)
+    assert abs(float(term0.correlation[0, 1])) < 0.15
     with pytest.raises(ValueError, match="must be finite"):
         fit_run_to_run(law, z, np.full((600, 2), np.nan))

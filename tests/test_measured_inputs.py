@@ -109,16 +109,20 @@ class _HeavyTailed(ForwardModel):
 
         return EmulatorError(np.ones(5), np.zeros(3), self.df)
 
-    def residual_log_density(self, r, var, theta):
-        return self._law().residual_log_density(r, var, theta)
+    def residual_log_density(self, r, var, theta, have=None):
+        return self._law().residual_log_density(r, var, theta, have)
 
     def sample_residual(self, rng, var, theta):
         return self._law().sample(rng, var, np.asarray(theta))
 
 
 def test_predictive_check_under_a_heavy_tailed_model_error():
-    """Replicated data from a Student-t model error: data drawn from that law pass, data 8 L* off fail, and with
-    many degrees of freedom the counted p-value is the normal law's exact χ² tail (to its Monte Carlo error)."""
+    """Replicated data from a (multivariate) Student-t model error: data drawn from that law pass, data 20 L* off
+    fail; without normal terms the counted p-value is the multivariate t's exact tail (the deviance is monotone in
+    Q = |r|², and Q/m is F(m, ν)), and with many degrees of freedom the normal law's exact χ² tail (to its Monte
+    Carlo error). One mixing variable serves all angles: 8 L* off at every angle is not rare under ν = 3 (p ≈ 0.003)."""
+    from scipy import stats
+
     truth = np.array([2.6, 1.9, 0.15])
     L = np.asarray(MIRROR(np.tile(truth, (16, 1))))[0]
     rng = np.random.default_rng(4)
@@ -127,8 +131,13 @@ def test_predictive_check_under_a_heavy_tailed_model_error():
     heavy = _HeavyTailed(3.0)
     y = L + heavy.sample_residual(rng, np.full((1, 5), 0.09), truth[None])[0]
     good = posterior_predictive_check(result, heavy, y, seed=0, replicates=200)
-    bad = posterior_predictive_check(result, heavy, L + np.array([8.0, -8.0, 8.0, -8.0, 8.0]), seed=0, replicates=200)
+    bad = posterior_predictive_check(result, heavy, L + np.array([20.0, -20.0, 20.0, -20.0, 20.0]), seed=0, replicates=200)
     assert good["replicates"] == 200 and good["p_value"] > 0.05 and bad["p_value"] < 1e-3
+    y8 = L + np.array([8.0, -8.0, 8.0, -8.0, 8.0])
+    counted = posterior_predictive_check(result, heavy, y8, instrument_sd=1e-6, seed=0, replicates=2000)
+    q = np.sum((y8 - np.asarray(MIRROR(draws))) ** 2, axis=1)
+    exact = np.mean(stats.f.sf(q / 5.0, 5, 3.0))
+    assert counted["draws"] == len(draws) and counted["p_value"] == pytest.approx(exact, rel=0.15), (counted["p_value"], exact)
     near_normal = _HeavyTailed(100.0)
     y = L + np.array([1.2, -0.8, 1.5, 0.3, -1.9])  # a χ² of ≈ 7.4 over 5 angles at unit scale
     counted = posterior_predictive_check(result, near_normal, y, instrument_sd=1e-6, seed=0, replicates=400)["p_value"]

@@ -305,8 +305,8 @@ def test_likelihood_variants_of_the_calibration_diagnosis():
         def fingerprint(self):
             return "regional mirror"
 
-        def residual_log_density(self, r, var, theta):
-            return law.residual_log_density(r, var, theta)
+        def residual_log_density(self, r, var, theta, have=None):
+            return law.residual_log_density(r, var, theta, have)
 
     base = Regional()
     rng = np.random.default_rng(0)

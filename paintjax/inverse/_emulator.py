@@ -33,7 +33,7 @@ from ._forward import ForwardModel, Restricted, _assemble
 from ._parameters import ParameterSpec
 
 EMULATOR_VERSION = 1  # meaning of the cached design evaluations (bump to re-run them)
-EMULATOR_FIT_VERSION = 5  # meaning of the fit on top of them (a change only re-fits, from the cached design)
+EMULATOR_FIT_VERSION = 6  # meaning of the fit on top of them (a change only re-fits, from the cached design); 6: the error law is multivariate
 
 # ------------------------------------------------------------------------------------------
 # Gaussian-process emulator
@@ -116,7 +116,8 @@ class Emulator(ForwardModel):
     n_train + n_test runs (the held-out set alone is small); `held_out_rms` and `held_out_loo_rms`
     are the two parts, `held_out_max` the largest held-out error (`held_out_max_by_angle` per angle).
     `error` is the heavy-tailed, regional model of the same cross-validated errors (`EmulatorError`,
-    Student-t with a scale that varies over the box) that the likelihood uses (`residual_log_density`).
+    a multivariate Student-t over the angles with a scale that varies over the box) that the likelihood uses
+    (`residual_log_density`).
     `select` gives the GPs of some angles.
     With a `mean_model`, L* = c₀ + c₁·L*_mean[`mean_rows`] + GP([unit θ, standardised L*_mean at `mean_features`]).
     """
@@ -170,10 +171,10 @@ class Emulator(ForwardModel):
         """θ in the unit cube of the box, clipped into it (as the GPs see it)."""
         return jnp.clip(self.spec.to_unit(jnp.asarray(theta)), 0.0, 1.0)
 
-    def residual_log_density(self, r, var, theta):
+    def residual_log_density(self, r, var, theta, have=None):
         if self.error is None:
-            return super().residual_log_density(r, var, theta)
-        return self.error.residual_log_density(r, var, self.unit_coordinates(theta))
+            return super().residual_log_density(r, var, theta, have)
+        return self.error.residual_log_density(r, var, self.unit_coordinates(theta), have)
 
     def sample_residual(self, rng, var, theta):
         if self.error is None:
@@ -477,7 +478,8 @@ def fit_emulator(Z, Y, Zt, Yt, spec, mean, mean_features, angles, source, key) -
     out["held_out_max"] = float(np.max(np.abs(err)))
     out["held_out_max_by_angle"] = np.max(np.abs(err), axis=0)
     error = fit_emulator_error(np.concatenate([Z, Zt]), np.concatenate([loo, err]))
-    out |= dict(error_scale=np.asarray(error.scale), error_slope=np.asarray(error.slope), error_df=np.asarray(error.df))
+    out |= dict(error_scale=np.asarray(error.scale), error_slope=np.asarray(error.slope), error_df=np.asarray(error.df),
+                error_correlation=np.asarray(error.correlation))
     out["train_seconds"] = time.perf_counter() - t0
     return out
 
@@ -516,7 +518,7 @@ def _emulator_from_arrays(a: dict, spec, angles, source, key, mean=None, mean_fe
         fit_id=str(a.get("fit_id", "")),
         n_test=int(np.asarray(a["Zt"]).shape[0]) if "Zt" in a else 0,
         held_out_max_by_angle=tuple(float(v) for v in np.asarray(a.get("held_out_max_by_angle", ()))),
-        error=EmulatorError(a["error_scale"], a["error_slope"], float(a["error_df"])) if "error_scale" in a else None,
+        error=EmulatorError(a["error_scale"], a["error_slope"], float(a["error_df"]), a.get("error_correlation")) if "error_scale" in a else None,
         mean_rows=tuple(range(len(angles))) if mean is not None else (),
     )
 

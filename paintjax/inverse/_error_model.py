@@ -1,21 +1,28 @@
-"""A heavy-tailed, regional model of an emulator's own error, fitted to its out-of-sample errors.
+"""A heavy-tailed, regional, correlated model of an emulator's own error, fitted to its out-of-sample errors.
 
-An emulator misses the map it emulates by e = L*_emulator − L*_direct. Its cross-validated errors
-(leave-one-out and held-out) are far from Gaussian: the tracer emulators' are Student-t with ν ≈ 2.4–4.2,
-and about five times larger at the smoothest platelets than at the roughest. `EmulatorError` models
-e_j(θ) at angle j as Student-t with ν degrees of freedom and a scale that varies log-linearly over the
-box,
+An emulator misses the map it emulates by e = L*_emulator − L*_direct, one value per output angle. Its
+cross-validated errors (leave-one-out and held-out) are far from Gaussian: the tracer emulators' are
+Student-t with ν ≈ 2.4–4.2, about five times larger at the smoothest platelets than at the roughest, and
+large at all angles of the same θ together. `EmulatorError` models the vector e(θ) as a multivariate
+Student-t: one mixing variable w per θ, shared by the angles,
 
+    e | w ~ Normal(0, w · D R D),   w ~ InverseGamma(ν/2, ν/2),   D = diag(c_j(θ)),
     c_j(θ) = c_j · exp(β · (z(θ) − ½)),      z = the unit-cube coordinate of θ in the emulator's box,
 
-fitted by maximum likelihood (`fit_emulator_error`). The likelihood of a measured value adds Gaussian
-terms (instrument repeatability, model discrepancy, run-to-run spread) to this error; the sum's density
-is the Student-t's scale mixture of normals, p(r) = ∫ N(r; 0, v + c² w) IG(w; ν/2, ν/2) dw, integrated
-on a fixed grid in log w (`residual_log_density`); with v = 0 it is the Student-t, with ν → ∞ the normal.
+with a correlation matrix R between the angles, fitted by maximum a-posteriori (`fit_emulator_error`; an
+LKJ prior of shape `CORRELATION_PRIOR_ETA` on R). Each angle's marginal is the Student-t of scale c_j. The
+likelihood of a measured curve adds Gaussian terms (instrument repeatability, model discrepancy,
+run-to-run spread: a diagonal V) to this error; the sum's density is the scale mixture
+p(r) = ∫ N(r; 0, V + w D R D) IG(w; ν/2, ν/2) dw, integrated on a fixed grid in log w
+(`residual_log_density`), with one eigendecomposition per θ: with B = V^-½ D R D V^-½ = Q Λ Qᵀ,
+log N = −½ Σ_i [log(1 + w λ_i) + y_i² / (1 + w λ_i)] − ½ log det(2π V), y = Qᵀ V^-½ r. With V = 0 it is
+the multivariate Student-t, with ν → ∞ the normal. Angles left out of a measurement are marginalised
+(their rows and columns dropped), so the density is that of the angles measured.
 
 An emulator of a tracer run with common random numbers (one array, one ray stream) also misses what an
 independent run gives (another array, other rays): `RunToRun` holds that miss's bias, linear over the box,
-and its spread, normal with a log-linear scale, fitted to misses against independent runs (`fit_run_to_run`).
+its spread, normal with a log-linear scale, and the correlation between the angles of the whole miss,
+fitted to misses against independent runs (`fit_run_to_run`).
 """
 
 from __future__ import annotations
@@ -26,26 +33,32 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import logsumexp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 #: The log-w grid of the scale mixture: `MIXTURE_NODES` nodes across the mixing law's bulk (between its
 #: `MIXTURE_TAIL` and 1 − `MIXTURE_TAIL` quantiles), then a tail grid out to the w that residuals of
-#: `MIXTURE_MAX_SCALES` scales need, its step a sixth of the width of the integrand's peak there (√(2/(ν+1))
-#: in log w), so that the density keeps its Student-t tail.
+#: `MIXTURE_MAX_SCALES` scales at every angle need, its step a sixth of the width of the integrand's peak there
+#: (√(2/(ν+m)) in log w for m angles), so that the density keeps its Student-t tail.
 MIXTURE_NODES, MIXTURE_TAIL, MIXTURE_MAX_SCALES = 128, 1e-13, 1e4
 #: Degrees of freedom the fit may choose: from Cauchy-like (1) to close to normal (100).
 DF_RANGE = (1.0, 100.0)
+#: Shape η of the LKJ prior p(R) ∝ det(R)^(η−1) on the correlation between the angles: η = 2 keeps a fit to a
+#: handful of points away from singular R and is weak against a hundred.
+CORRELATION_PRIOR_ETA = 2.0
+#: Normal variances below this fraction of c_j² are raised to it (a relative change of the scale of 10⁻¹⁰), so that
+#: V^-½ exists where no normal term is added.
+VAR_FLOOR = 1e-10
 
 
-def _mixture_grid(df: float) -> tuple[np.ndarray, np.ndarray]:
-    """(log w nodes, log weights) of the inverse-gamma(ν/2, ν/2) mixing law: trapezoid weights on the
-    grid in log w described at `MIXTURE_NODES`, normalised to one."""
+def _mixture_grid(df: float, m: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(log w nodes, log weights) of the inverse-gamma(ν/2, ν/2) mixing law for m angles: trapezoid weights on
+    the grid in log w described at `MIXTURE_NODES`, normalised to one."""
     from scipy.stats import invgamma
 
     law = invgamma(df / 2.0, scale=df / 2.0)
     lo, hi = np.log(law.ppf(MIXTURE_TAIL)), np.log(law.isf(MIXTURE_TAIL))
     u = np.linspace(lo, hi, MIXTURE_NODES)
-    top, step = np.log(10.0 * MIXTURE_MAX_SCALES**2 / (df + 1.0)), math.sqrt(2.0 / (df + 1.0)) / 6.0
+    top, step = np.log(10.0 * m * MIXTURE_MAX_SCALES**2 / (df + m)), math.sqrt(2.0 / (df + m)) / 6.0
     if hi < top:
         u = np.r_[u, np.arange(hi + step, top + step, step)]
     width = 0.5 * (np.r_[u[1:], u[-1]] - np.r_[u[0], u[:-1]])
@@ -58,28 +71,49 @@ def regional_scale(base: Float[Array, " m"], slope: Float[Array, " p"], z: Float
     return jnp.asarray(base)[None, :] * jnp.exp((jnp.asarray(z) - 0.5) @ jnp.asarray(slope))[:, None]
 
 
+def correlation_from_unconstrained(q, m: int):
+    """A correlation matrix (m, m) from m(m−1)/2 free numbers: the strict lower triangle of a unit-diagonal L,
+    R = the correlation of L Lᵀ (any q gives a valid R; q = 0 gives the identity)."""
+    L = jnp.eye(m).at[jnp.tril_indices(m, -1)].set(q)
+    S = L @ L.T
+    d = jnp.sqrt(jnp.diagonal(S))
+    return S / d[:, None] / d[None, :]
+
+
+def _lkj_log_prior(R) -> Float[Array, ""]:
+    return (CORRELATION_PRIOR_ETA - 1.0) * jnp.linalg.slogdet(R)[1]
+
+
 class EmulatorError(eqx.Module):
-    """Student-t error of an emulator with a scale that varies over its box (see the module docstring).
+    """Multivariate Student-t error of an emulator with a scale that varies over its box (module docstring).
 
     Attributes:
         scale: (m,) Student-t scale c_j per output angle at the centre of the box [L*].
         slope: (p,) β, the change of log c per unit-cube coordinate of each parameter (shared by the angles).
+        correlation: (m, m) R, the correlation between the angles' errors.
         df: ν, the degrees of freedom (``inf``: normal).
         log_w, log_weight: the mixture grid (`_mixture_grid`), empty for ν = inf.
     """
 
     scale: Float[Array, " m"]
     slope: Float[Array, " p"]
+    correlation: Float[Array, "m m"]
     df: float = eqx.field(static=True)
     log_w: Float[Array, " k"]
     log_weight: Float[Array, " k"]
 
-    def __init__(self, scale, slope, df: float):
+    def __init__(self, scale, slope, df: float, correlation=None):
         df = float(df)
         if not (df >= DF_RANGE[0]):
             raise ValueError(f"df must be >= {DF_RANGE[0]:g} (inf for a normal error), got {df!r}")
-        self.scale, self.slope, self.df = jnp.asarray(scale, float), jnp.asarray(slope, float), df
-        u, lw = (np.zeros(0), np.zeros(0)) if math.isinf(df) else _mixture_grid(df)
+        self.scale, self.slope, self.df = jnp.atleast_1d(jnp.asarray(scale, float)), jnp.asarray(slope, float), df
+        m = self.scale.shape[0]
+        if correlation is None:
+            correlation = np.eye(m)
+        self.correlation = jnp.asarray(correlation, float)
+        if self.correlation.shape != (m, m):
+            raise ValueError(f"correlation must be ({m}, {m}) for {m} angles, got {self.correlation.shape}")
+        u, lw = (np.zeros(0), np.zeros(0)) if math.isinf(df) else _mixture_grid(df, m)
         self.log_w, self.log_weight = jnp.asarray(u), jnp.asarray(lw)
 
     def scale_at(self, z: Float[Array, "n p"]) -> Float[Array, "n m"]:
@@ -88,37 +122,66 @@ class EmulatorError(eqx.Module):
 
     def select(self, rows) -> "EmulatorError":
         """The error model of some output angles (their rows, in that order)."""
-        return EmulatorError(self.scale[np.asarray(rows)], self.slope, self.df)
+        rows = np.asarray(rows)
+        return EmulatorError(self.scale[rows], self.slope, self.df, self.correlation[np.ix_(rows, rows)])
 
-    def residual_log_density(self, r: Float[Array, "n m"], var: Float[Array, "n m"], z: Float[Array, "n p"]) -> Float[Array, "n m"]:
-        """log p(r) of r = Normal(0, var) + this error at unit-cube points z (elementwise)."""
-        c2 = self.scale_at(z) ** 2
+    def with_correlation(self, correlation) -> "EmulatorError":
+        """This law with another correlation between the angles (traceable: the mixture grid is kept)."""
+        return eqx.tree_at(lambda e: e.correlation, self, jnp.asarray(correlation, float))
+
+    def residual_log_density(self, r: Float[Array, "n m"], var: Float[Array, "n m"], z: Float[Array, "n p"],
+                             have: Bool[Array, "n m"] | None = None) -> Float[Array, " n"]:
+        """log p(r) of the vector r = Normal(0, diag(var)) + this error at unit-cube points z, over the angles in
+        `have` (broadcast to r; default all), the others marginalised. One eigendecomposition per row."""
+        c = self.scale_at(z)
+        r = jnp.asarray(r)
+        shape = jnp.broadcast_shapes(r.shape, jnp.shape(var), c.shape)
+        r, c = jnp.broadcast_to(r, shape), jnp.broadcast_to(c, shape)
+        h = jnp.ones(shape, bool) if have is None else jnp.broadcast_to(jnp.asarray(have, bool), shape)
+        m = shape[-1]
+        v = jnp.where(h, jnp.maximum(jnp.broadcast_to(jnp.asarray(var, float), shape), VAR_FLOOR * c**2), 1.0)
+        a = jnp.where(h, c / jnp.sqrt(v), 0.0)
+        # angles left out: distinct negative placeholders on the diagonal keep the eigenvalues apart (and eigh's
+        # derivative finite); their y is 0 and their λ < 0 marks them out of the sums
+        ghost = jnp.where(h, 0.0, -(1.0 + jnp.arange(m, dtype=v.dtype)))
+        B = a[..., :, None] * self.correlation * a[..., None, :] + ghost[..., :, None] * jnp.eye(m)
+        lam, Q = jnp.linalg.eigh(B)
+        y = jnp.einsum("...ji,...j->...i", Q, jnp.where(h, r, 0.0) / jnp.sqrt(v))
+        seen = lam >= 0.0
+        lam = jnp.where(seen, lam, 0.0)
+        const = -0.5 * jnp.sum(jnp.where(h, jnp.log(2.0 * jnp.pi * v), 0.0), axis=-1)
         if math.isinf(self.df):
-            v = var + c2
-            return -0.5 * (r**2 / v + jnp.log(2.0 * jnp.pi * v))
-        v = var[..., None] + c2[..., None] * jnp.exp(self.log_w)
-        terms = self.log_weight - 0.5 * (r[..., None] ** 2 / v + jnp.log(2.0 * jnp.pi * v))
-        return logsumexp(terms, axis=-1)
+            return const - 0.5 * jnp.sum(jnp.where(seen, jnp.log1p(lam) + y**2 / (1.0 + lam), 0.0), axis=-1)
+        t = 1.0 + lam[..., None] * jnp.exp(self.log_w)
+        terms = self.log_weight - 0.5 * jnp.sum(jnp.where(seen[..., None], jnp.log(t) + y[..., None] ** 2 / t, 0.0), axis=-2)
+        return const + logsumexp(terms, axis=-1)
 
     def sample(self, rng: np.random.Generator, var: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """Draws of Normal(0, var) + this error at unit-cube points z (NumPy; var and z broadcast to (n, m))."""
+        """Draws of Normal(0, diag(var)) + this error at unit-cube points z, one row per point (NumPy; var and z
+        broadcast to (n, m)): one mixing variable per row, correlated normals across the angles."""
         c = np.asarray(self.scale_at(jnp.asarray(z)))
         shape = np.broadcast_shapes(c.shape, np.shape(var))
-        w = 1.0 if math.isinf(self.df) else self.df / rng.chisquare(self.df, size=shape)
-        return rng.standard_normal(shape) * np.sqrt(var + c**2 * w)
+        w = np.ones(shape[:-1] + (1,)) if math.isinf(self.df) else self.df / rng.chisquare(self.df, size=shape[:-1] + (1,))
+        chol = np.linalg.cholesky(np.asarray(self.correlation, float))
+        e = rng.standard_normal(shape) @ chol.T
+        return e * c * np.sqrt(w) + rng.standard_normal(shape) * np.sqrt(np.broadcast_to(var, shape))
 
 
 def fit_emulator_error(z: np.ndarray, errors: np.ndarray) -> EmulatorError:
-    """Maximum-likelihood `EmulatorError` of out-of-sample errors.
+    """Maximum a-posteriori `EmulatorError` of out-of-sample errors (flat priors on the scales, the slope and ν;
+    the LKJ prior on the correlation).
 
     Arguments:
         z: (n, p) unit-cube points where the errors were measured.
         errors: (n, m) emulator − direct at those points (leave-one-out and held-out).
 
     Returns:
-        `EmulatorError` with per-angle scales, a shared log-linear slope over the box, and ν in `DF_RANGE`.
+        `EmulatorError` with per-angle scales, a shared log-linear slope over the box, ν in `DF_RANGE` and the
+        correlation between the angles.
     """
-    from scipy import optimize, stats
+    import jax
+    from jax.scipy.special import gammaln
+    from scipy import optimize
 
     z, e = np.asarray(z, float), np.asarray(errors, float)
     if z.ndim != 2 or e.ndim != 2 or z.shape[0] != e.shape[0] or z.shape[0] < 4 or not np.all(np.isfinite(e)):
@@ -126,25 +189,35 @@ def fit_emulator_error(z: np.ndarray, errors: np.ndarray) -> EmulatorError:
     n, m = e.shape
     p = z.shape[1]
     floor = 1e-9 * max(float(np.max(np.abs(e))), 1e-12)  # an exact emulator: scales at a tiny floor, not log 0
-    zc = z - 0.5
+    zc, ej = jnp.asarray(z - 0.5), jnp.asarray(e)
 
     def unpack(q):
-        df = DF_RANGE[0] + (DF_RANGE[1] - DF_RANGE[0]) / (1.0 + np.exp(-q[m + p]))
-        return q[:m], q[m:m + p], df
+        df = DF_RANGE[0] + (DF_RANGE[1] - DF_RANGE[0]) * jax.nn.sigmoid(q[m + p])
+        return q[:m], q[m:m + p], df, correlation_from_unconstrained(q[m + p + 1:], m)
 
-    def nll(q):
-        log_c, beta, df = unpack(q)
-        s = np.exp(log_c[None, :] + (zc @ beta)[:, None]) + floor
-        return -np.sum(stats.t.logpdf(e, df, scale=s))
+    @jax.jit
+    def objective(q):
+        log_c, beta, df, R = unpack(q)
+        s = jnp.exp(log_c[None, :] + (zc @ beta)[:, None]) + floor
+        u = ej / s
+        quad = jnp.sum(u * jnp.linalg.solve(R, u.T).T, axis=1)
+        logdet = jnp.linalg.slogdet(R)[1]
+        ll = (gammaln((df + m) / 2) - gammaln(df / 2) - 0.5 * m * jnp.log(df * jnp.pi) - 0.5 * logdet
+              - jnp.sum(jnp.log(s), axis=1) - 0.5 * (df + m) * jnp.log1p(quad / df))
+        return -jnp.sum(ll) - _lkj_log_prior(R)
 
-    q0 = np.r_[np.log(np.median(np.abs(e), axis=0) + floor), np.zeros(p), 0.0]
+    grad = jax.jit(jax.grad(objective))
+    q0 = np.r_[np.log(np.median(np.abs(e), axis=0) + floor), np.zeros(p), 0.0, np.zeros(m * (m - 1) // 2)]
     best = None
-    for start in (q0, np.r_[q0[:m + p], -4.0], np.r_[q0[:m + p], 4.0]):  # ν from ≈ 50, ≈ 2.8 and ≈ 98
-        res = optimize.minimize(nll, start, method="L-BFGS-B")
+    for g in (0.0, -4.0, 4.0):  # ν from ≈ 50, ≈ 2.8 and ≈ 98
+        start = q0.copy()
+        start[m + p] = g
+        res = optimize.minimize(lambda q: float(objective(jnp.asarray(q))), start, jac=lambda q: np.asarray(grad(jnp.asarray(q))),
+                                method="L-BFGS-B")
         if best is None or res.fun < best.fun:
             best = res
-    log_c, beta, df = unpack(best.x)
-    return EmulatorError(np.exp(log_c), beta, df)
+    log_c, beta, df, R = unpack(jnp.asarray(best.x))
+    return EmulatorError(np.exp(np.asarray(log_c)), np.asarray(beta), float(df), np.asarray(R))
 
 
 #: Prior SD [L*] of each coefficient of a run-to-run bias (its value at the box centre, and its change across the
@@ -154,19 +227,22 @@ BIAS_PRIOR_SD = 5.0
 
 class RunToRun(eqx.Module):
     """What an emulator of a common-random-number (CRN) tracer misses against independent runs (fresh arrays and
-    rays), beyond its cross-validated error law: a bias linear over the box and a normal spread whose scale varies
-    log-linearly over the box (`fit_run_to_run`).
+    rays), beyond its cross-validated error law: a bias linear over the box, a normal spread whose scale varies
+    log-linearly over the box, and the correlation between the angles of the whole miss (`fit_run_to_run`).
 
     Attributes:
         bias: (p + 1, m) per angle: the bias at the box centre, then its change per unit-cube coordinate [L*].
         bias_cov: (m, p + 1, p + 1) the bias coefficients' covariance (inverse Hessian of the fit).
         sd: (m,) the spread's scale at the box centre [L*]; slope: (p,) its log-linear change (shared by the angles).
+        correlation: (m, m) the correlation between the angles of the error law's part of the miss against an
+            independent run (it replaces the cross-validated law's, `EmulatorError.with_correlation`).
     """
 
     bias: Float[Array, "q m"]
     bias_cov: Float[Array, "m q q"]
     sd: Float[Array, " m"]
     slope: Float[Array, " p"]
+    correlation: Float[Array, "m m"]
 
     @property
     def bias_se(self) -> Float[Array, "q m"]:
@@ -185,7 +261,7 @@ class RunToRun(eqx.Module):
     def select(self, rows) -> "RunToRun":
         """The terms of some output angles (their rows, in that order)."""
         rows = np.asarray(rows)
-        return RunToRun(self.bias[:, rows], self.bias_cov[rows], self.sd[rows], self.slope)
+        return RunToRun(self.bias[:, rows], self.bias_cov[rows], self.sd[rows], self.slope, self.correlation[np.ix_(rows, rows)])
 
 
 def _design(z):
@@ -196,9 +272,10 @@ def _design(z):
 def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray) -> RunToRun:
     """Maximum a-posteriori `RunToRun` of an emulator's misses r (n, m) against independent runs at unit-cube
     points z (n, p): r = b(z) + e + ε, e ~ `error` (the emulator's cross-validated law against the CRN tracer it
-    was trained on), b(z) = b₀ + B·(z − ½) the CRN tracer's bias against fresh runs (each coefficient with a normal
-    prior of SD `BIAS_PRIOR_SD`), ε ~ Normal(0, s_j² exp(2γ·(z − ½))) the run-to-run spread (another array,
-    other rays). The bias's covariance is the inverse Hessian at the optimum.
+    was trained on) with its correlation between the angles refitted, b(z) = b₀ + B·(z − ½) the CRN tracer's bias
+    against fresh runs (each coefficient with a normal prior of SD `BIAS_PRIOR_SD`), ε ~ Normal(0, s_j² exp(2γ·(z − ½)))
+    the run-to-run spread (another array, other rays), the correlation with the LKJ prior of `fit_emulator_error`.
+    The bias's covariance is the inverse Hessian at the optimum.
     """
     import jax
     from scipy import optimize
@@ -207,23 +284,27 @@ def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray) -
     if z.ndim != 2 or r.ndim != 2 or z.shape[0] != r.shape[0] or r.shape[1] != error.scale.shape[0] or not np.all(np.isfinite(r)):
         raise ValueError(f"z (n, p) and residuals (n, {error.scale.shape[0]}) must be finite with the same n, got {z.shape} and {r.shape}")
     m, p = r.shape[1], z.shape[1]
+    nb = (p + 1) * m
     zj, rj, x = jnp.asarray(z), jnp.asarray(r), _design(z)
 
     def unpack(q):
-        return jnp.exp(q[:m]), q[m:m + p], q[m + p:].reshape(p + 1, m)
+        return (jnp.exp(q[:m]), q[m:m + p], q[m + p:m + p + nb].reshape(p + 1, m),
+                correlation_from_unconstrained(q[m + p + nb:], m))
 
     @jax.jit
     def objective(q):
-        sd, slope, bias = unpack(q)
+        sd, slope, bias, R = unpack(q)
         var = regional_scale(sd, slope, zj) ** 2
-        return -jnp.sum(error.residual_log_density(rj - x @ bias, var, zj)) + 0.5 * jnp.sum((bias / BIAS_PRIOR_SD) ** 2)
+        law = error.with_correlation(R)
+        return (-jnp.sum(law.residual_log_density(rj - x @ bias, var, zj)) + 0.5 * jnp.sum((bias / BIAS_PRIOR_SD) ** 2)
+                - _lkj_log_prior(R))
 
     grad = jax.jit(jax.grad(objective))
     start = np.linalg.lstsq(np.asarray(x), r, rcond=None)[0]
-    q0 = np.r_[np.log(np.std(r - np.asarray(x) @ start, axis=0) + 1e-9), np.zeros(p), start.ravel()]
+    q0 = np.r_[np.log(np.std(r - np.asarray(x) @ start, axis=0) + 1e-9), np.zeros(p), start.ravel(), np.zeros(m * (m - 1) // 2)]
     res = optimize.minimize(lambda q: float(objective(jnp.asarray(q))), q0, jac=lambda q: np.asarray(grad(jnp.asarray(q))), method="L-BFGS-B")
-    sd, slope, bias = unpack(jnp.asarray(res.x))
-    cov = np.linalg.pinv(np.asarray(jax.hessian(objective)(jnp.asarray(res.x))))[m + p:, m + p:]  # rows (k, j): k·m + j
+    sd, slope, bias, R = unpack(jnp.asarray(res.x))
+    cov = np.linalg.pinv(np.asarray(jax.hessian(objective)(jnp.asarray(res.x))))[m + p:m + p + nb, m + p:m + p + nb]  # rows (k, j): k·m + j
     idx = np.arange(p + 1)[:, None] * m + np.arange(m)[None, :]
     bias_cov = np.stack([cov[np.ix_(idx[:, j], idx[:, j])] for j in range(m)])
-    return RunToRun(bias, jnp.asarray(bias_cov), sd, slope)
+    return RunToRun(bias, jnp.asarray(bias_cov), sd, slope, R)

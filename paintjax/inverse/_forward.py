@@ -5,7 +5,8 @@ A `ForwardModel` names the parameters it consumes (`parameter_names`, a subset o
 the instrument's angles, and states its own error: `error_sd` per angle (zero for direct models, the
 cross-validated RMS for emulators), which least squares adds to the instrument's, and the law the
 likelihood uses, `residual_log_density` (normal with `error_sd` by default; an emulator's is a
-heavy-tailed Student-t whose scale varies over its box, `paintjax.inverse._error_model`). Implementations:
+heavy-tailed multivariate Student-t over the angles whose scale varies over its box, `paintjax.inverse._error_model`).
+Implementations:
 
 * `AnalyticForward` – the analytic single-scatter model of `paintjax.instrument._single_scatter` (milliseconds, jit and
   differentiable). Smooth (mirror) platelets, or rough platelets whose σ, τ enter through a
@@ -40,7 +41,7 @@ from collections.abc import Callable, Mapping, Sequence
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from ..instrument._geometry import STANDARD_ASPECULAR
 from ._parameters import get_parameter
@@ -72,12 +73,15 @@ class ForwardModel(eqx.Module):
         """Degrees of freedom of the model's own error (inf: normal, as `error_sd` says)."""
         return math.inf
 
-    def residual_log_density(self, r: Float[Array, "n m"], var: Float[Array, "n m"], theta: Float[Array, "n p"]) -> Float[Array, "n m"]:
-        """log p(r) of a residual r = measured − model at θ, with Normal(0, var) measurement terms (instrument,
-        discrepancy) plus the model's own error (here normal with `error_sd`; an emulator's is heavy-tailed).
-        Traceable; elementwise per angle."""
+    def residual_log_density(self, r: Float[Array, "n m"], var: Float[Array, "n m"], theta: Float[Array, "n p"],
+                             have: Bool[Array, "n m"] | None = None) -> Float[Array, " n"]:
+        """log p(r) of the residual vector r = measured − model at θ over the angles in `have` (broadcast to r;
+        default all), with Normal(0, var) measurement terms (instrument, discrepancy) plus the model's own
+        error (here normal with `error_sd`, independent between the angles; an emulator's is a heavy-tailed law
+        correlated between them). Traceable; one value per row."""
         v = var + jnp.asarray(self.error_sd) ** 2
-        return -0.5 * (r**2 / v + jnp.log(2.0 * jnp.pi * v))
+        logp = -0.5 * (r**2 / v + jnp.log(2.0 * jnp.pi * v))
+        return jnp.sum(logp if have is None else jnp.where(have, logp, 0.0), axis=-1)
 
     def sample_residual(self, rng: np.random.Generator, var, theta) -> np.ndarray:
         """Draws of the residual law of `residual_log_density` at θ (NumPy; var broadcast to (n, m))."""

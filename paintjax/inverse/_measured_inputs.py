@@ -186,8 +186,7 @@ def posterior_predictive_check(result, forward, measured, *, fixed=None, instrum
     var = np.broadcast_to(np.asarray(instrument_sd, float) ** 2 + delta[:, None] ** 2, L.shape)
 
     def deviance(resid, var_, theta_):
-        logp = np.asarray(forward.residual_log_density(jnp.asarray(resid), jnp.asarray(var_), jnp.asarray(theta_)))
-        return -2.0 * np.sum(np.where(have, logp, 0.0), axis=-1)
+        return -2.0 * np.asarray(forward.residual_log_density(jnp.asarray(resid), jnp.asarray(var_), jnp.asarray(theta_), jnp.asarray(have)))
 
     rep = L + forward.sample_residual(rng, var, theta)
     if np.isinf(forward.error_df):  # normal: T − Σ log(2π v) is χ²_m given θ

@@ -213,7 +213,7 @@ class LogPosterior:
             x = spec.from_unconstrained(U)
             delta = x[:, d_col] if d_col >= 0 else jnp.full(U.shape[0], d_fixed)
             var = var0[None, :] + delta[:, None] ** 2
-            ll = jnp.sum(jnp.where(have, forward.residual_log_density(y - L, var, restricted.full(x[:, cols])), 0.0), axis=-1)
+            ll = forward.residual_log_density(y - L, var, restricted.full(x[:, cols]), have)
             lp = ll + spec.log_prior_unconstrained(U)
             if inputs is not None:  # the published inputs as data (`MeasuredInputs`)
                 params = {n: jnp.full(U.shape[0], float(v)) for n, v in fixed_inputs.items()}

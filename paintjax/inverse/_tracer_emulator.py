@@ -12,8 +12,9 @@ leave-one-out errors; `Emulator.error_sd`) combined in quadrature with the **CRN
 the CRN evaluation and independent tracer runs (fresh generator arrays and rays, seeds ≠ the CRN
 seed) at `SPREAD_THETA` (`seed_spread`) — the error of one finite tile and ray count against
 another realisation, including the transport's bias. The likelihood uses the same errors' heavy-tailed,
-regional model (`EmulatorError`: Student-t, ν ≈ 4 for the shipped wide emulator, scale falling about sixfold from the smoothest
-to the roughest platelets) plus the **run-to-run terms** (`RunToRun`), fitted to the emulator's misses against
+regional model (`EmulatorError`: multivariate Student-t over the angles, ν ≈ 5 for the shipped wide emulator, scale falling
+about sixfold from the smoothest to the roughest platelets, the correlation between the angles that of the misses against
+independent runs) plus the **run-to-run terms** (`RunToRun`), fitted to the emulator's misses against
 `INDEPENDENT_RUNS` independent tracer runs: the CRN tracer's bias against fresh arrays, linear over the box
 (the transported tilts of one reference array are not de-overlapped again, so the CRN tracer is brighter at
 45–110° where the tilt law is wide), which the emulator subtracts from its prediction, and a normal spread
@@ -189,6 +190,8 @@ def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, di
     class_ = _tracer_emulator_class()
     fields = {f.name: getattr(em, f.name) for f in dataclasses.fields(Emulator)}
     sd = () if spread is None else tuple(float(v) for v in np.asarray(spread["sd"]))
+    if checked is not None and fields["error"] is not None:  # against independent runs the angles correlate as fitted there
+        fields["error"] = fields["error"].with_correlation(checked["term"].correlation)
     out = class_(**fields, seed_spread_sd=sd, run_to_run=None if checked is None else checked["term"])
     _INFO[em.key] = {
         "held_out_rms_crn": list(em.held_out_rms),
@@ -207,6 +210,7 @@ def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, di
         "run_to_run_bias": None if checked is None else np.asarray(checked["term"].bias).tolist(),
         "run_to_run_bias_se": None if checked is None else np.asarray(checked["term"].bias_se).tolist(),
         "run_to_run_sd": None if checked is None else np.asarray(checked["term"].sd).tolist(),
+        "run_to_run_correlation": None if checked is None else np.asarray(checked["term"].correlation).tolist(),
         "independent_runs": 0 if checked is None else checked["n"],
         "independent_no_array": 0 if checked is None else checked["no_array"],
         "build_seconds_this_call": build_seconds,
@@ -235,7 +239,8 @@ def _tracer_emulator_class():
             """GP emulator of the tracer; `error_sd` = sqrt(cross-validated RMS² + seed-to-seed spread²). Where independent
             tracer runs were made (`run_to_run`, a `RunToRun`) it predicts what an independent run gives: the GP of the CRN
             tracer minus the CRN tracer's bias fitted over the box, and the likelihood's residual law is the GP's
-            cross-validated `EmulatorError` plus the run-to-run spread and the bias's own uncertainty as a normal term;
+            cross-validated `EmulatorError` with the correlation between the angles of the misses against those runs, plus
+            the run-to-run spread and the bias's own uncertainty as a normal term;
             without them, plus the seed spread at `SPREAD_THETA`."""
 
             seed_spread_sd: tuple = eqx.field(static=True, default=())
@@ -263,8 +268,8 @@ def _tracer_emulator_class():
                     return var + self.run_to_run.variance(self.unit_coordinates(theta))
                 return var + np.asarray(self.seed_spread_sd) ** 2 if self.seed_spread_sd else var
 
-            def residual_log_density(self, r, var, theta):
-                return super().residual_log_density(r, self._with_spread(var, theta), theta)
+            def residual_log_density(self, r, var, theta, have=None):
+                return super().residual_log_density(r, self._with_spread(var, theta), theta, have)
 
             def sample_residual(self, rng, var, theta):
                 return super().sample_residual(rng, np.asarray(self._with_spread(var, theta)), theta)
@@ -273,7 +278,7 @@ def _tracer_emulator_class():
                 added = ""
                 if self.run_to_run is not None:
                     t = self.run_to_run
-                    added = f",run_to_run={[np.round(np.asarray(v), 6).tolist() for v in (t.bias, t.sd, t.slope)]}"
+                    added = f",run_to_run={[np.round(np.asarray(v), 6).tolist() for v in (t.bias, t.sd, t.slope, t.correlation)]}"
                 return f"Tracer{super().fingerprint()},spread={self.seed_spread_sd}{added}"  # the GP fit too, as Emulator's
 
             def select(self, angles):
@@ -303,6 +308,8 @@ def tracer_info(emulator) -> dict:
     for k in ("seed_spread_L", "seed_spread_L_crn"):
         if info[k] is not None:
             info[k] = np.asarray(info[k])[..., idx].tolist()
+    if info["run_to_run_correlation"]:
+        info["run_to_run_correlation"] = np.asarray(info["run_to_run_correlation"])[np.ix_(idx, idx)].tolist()
     if info["held_out_max_by_angle"]:
         info["held_out_max"] = max(info["held_out_max_by_angle"])
     return info | {"angles": list(emulator.angles)}
