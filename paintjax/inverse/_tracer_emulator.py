@@ -147,7 +147,6 @@ def _independent_check(em, model, fn, spec, n: int, seed: int, cache_dir) -> dic
     """The emulator against `n` independent tracer runs at Latin hypercubes of its box, and the run-to-run terms
     (`fit_run_to_run`: the CRN tracer's bias, the spread) that its cross-validated error law needs to hold those misses."""
     from ._emulator import _lhs
-    from ._error_model import fit_run_to_run
 
     z, theta, runs = [], [], []
     for b in range(-(-n // INDEPENDENT_BATCH)):  # Latin hypercubes of INDEPENDENT_BATCH runs, each cached on its own
@@ -160,10 +159,29 @@ def _independent_check(em, model, fn, spec, n: int, seed: int, cache_dir) -> dic
     made = np.all(np.isfinite(runs), axis=1)  # a θ whose platelets cannot fit the film has no array
     z, theta, runs = z[made], theta[made], runs[made]
     miss = np.asarray(em(theta)) - runs
-    term = fit_run_to_run(em.error, z, miss)
+    term = _cached_run_to_run(em.error, z, miss, cache_dir)
     left = miss - np.asarray(term.mean(z))
     return {"term": term, "rms": np.sqrt(np.mean(miss**2, axis=0)), "max": np.max(np.abs(miss), axis=0),
             "rms_corrected": np.sqrt(np.mean(left**2, axis=0)), "n": int(made.sum()), "no_array": int(n - made.sum())}
+
+
+def _cached_run_to_run(error, z, miss, cache_dir):
+    """`fit_run_to_run`, cached on disk under its inputs (the error law and the misses, rounded to 10⁻⁶, so that a key does not hang on the last bits) and shipped with
+    the wide emulator: the joint law's fit takes seconds, and every process that builds the emulator needs it."""
+    import jax.numpy as jnp
+
+    from .._cache import cached_arrays
+    from ._error_model import RunToRun, fit_run_to_run
+
+    def fit():
+        t = fit_run_to_run(error, z, miss)
+        return {"bias": t.bias, "bias_cov": t.bias_cov, "sd": t.sd, "slope": t.slope, "correlation": t.correlation}
+
+    inputs = {"version": 1, "scale": np.round(np.asarray(error.scale), 9), "slope": np.round(np.asarray(error.slope), 9),
+              "df": round(float(error.df), 9), "correlation": np.round(np.asarray(error.correlation), 9),
+              "z": np.round(np.asarray(z), 6), "miss": np.round(np.asarray(miss), 6)}
+    a, _ = cached_arrays("emulator-run-to-run", inputs, fit, folder=cache_dir)
+    return RunToRun(*(jnp.asarray(a[k]) for k in ("bias", "bias_cov", "sd", "slope", "correlation")))
 
 
 def _analytic_mean(angles, names, held):
