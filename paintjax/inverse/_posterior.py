@@ -3,9 +3,9 @@
 Model: L*_meas,j = L*_model,j(θ) + ε_j + e_j, ε_j ~ Normal(0, σ_instr² + δ²), with σ_instr the
 instrument repeatability (0.3 L*), δ the model-discrepancy scale (a free parameter with a
 half-Cauchy(5 L*) prior, or fixed) and e_j the forward model's own error, whose law the model states
-(`ForwardModel.residual_log_density`): none for the analytic model; for an emulator a Student-t whose
-scale varies over its box, fitted to its cross-validated errors (`EmulatorError`), plus, for the
-tracer emulators, the run-to-run spread as a normal term. Priors: the weak priors of
+(`ForwardModel.residual_log_density`): none for the analytic model; for an emulator a multivariate Student-t
+over the angles whose scale varies over its box, fitted to its cross-validated errors (`EmulatorError`), plus,
+for the tracer emulators, the run-to-run spread as a normal term and the angles' correlation against independent runs. Priors: the weak priors of
 `paintjax.inverse._parameters` (log-uniform for tilt shape/scale and roughness σ/τ over their boxes,
 uniform for bounded fractions, half-Cauchy for δ) — none centred on the measured values. The
 published inputs can enter as data instead (`inputs=`, a `MeasuredInputs`: their likelihood given the
