@@ -145,7 +145,8 @@ def tracer_emulator(
 
 def _independent_check(em, model, fn, spec, n: int, seed: int, cache_dir) -> dict:
     """The emulator against `n` independent tracer runs at Latin hypercubes of its box, and the run-to-run terms
-    (`fit_run_to_run`: the CRN tracer's bias, the spread) that its cross-validated error law needs to hold those misses."""
+    (`fit_run_to_run`: the CRN tracer's bias, the spread, the angles' correlation) that its cross-validated error law
+    needs to hold those misses."""
     from ._emulator import _lhs
 
     z, theta, runs = [], [], []
@@ -166,22 +167,25 @@ def _independent_check(em, model, fn, spec, n: int, seed: int, cache_dir) -> dic
 
 
 def _cached_run_to_run(error, z, miss, cache_dir):
-    """`fit_run_to_run`, cached on disk under its inputs (the error law and the misses, rounded to 10⁻⁶, so that a key does not hang on the last bits) and shipped with
-    the wide emulator: the joint law's fit takes seconds, and every process that builds the emulator needs it."""
+    """`fit_run_to_run`, cached on disk under its inputs (the error law; the points and misses rounded to 10⁻⁶, so
+    that a key does not hang on the last bits) and shipped with the wide emulator: the joint law's fit takes
+    seconds, and every process that builds the emulator needs it."""
     import jax.numpy as jnp
 
     from .._cache import cached_arrays
     from ._error_model import RunToRun, fit_run_to_run
 
+    names = [f.name for f in dataclasses.fields(RunToRun)]
+
     def fit():
-        t = fit_run_to_run(error, z, miss)
-        return {"bias": t.bias, "bias_cov": t.bias_cov, "sd": t.sd, "slope": t.slope, "correlation": t.correlation}
+        term = fit_run_to_run(error, z, miss)
+        return {k: getattr(term, k) for k in names}
 
     inputs = {"version": 1, "scale": np.round(np.asarray(error.scale), 9), "slope": np.round(np.asarray(error.slope), 9),
               "df": round(float(error.df), 9), "correlation": np.round(np.asarray(error.correlation), 9),
               "z": np.round(np.asarray(z), 6), "miss": np.round(np.asarray(miss), 6)}
     a, _ = cached_arrays("emulator-run-to-run", inputs, fit, folder=cache_dir)
-    return RunToRun(*(jnp.asarray(a[k]) for k in ("bias", "bias_cov", "sd", "slope", "correlation")))
+    return RunToRun(**{k: jnp.asarray(a[k]) for k in names})
 
 
 def _analytic_mean(angles, names, held):
