@@ -82,6 +82,28 @@ def test_minus_15_is_traced_in_its_own_pass_and_leaves_the_five_angles_bit_for_b
         TracerSettings(extra_aspecular=(15.0,))
 
 
+def test_brdf_between_nodes(fn):
+    """The default table at (σ, τ) is `build_at`'s; "at" selects the differentiable interpolation. At a node both
+    are the node's table (the same L* to rounding); between nodes they differ, the setting enters the cache key,
+    and an unknown value is refused by name."""
+    import dataclasses
+
+    assert TINY.brdf_between_nodes == "build_at"
+    other = TracerLStar(dataclasses.replace(TINY, brdf_between_nodes="at"))
+    assert other.settings.identity() != TINY.identity()
+    node = np.array([[2.5, 2.0, 0.04, 0.5]])
+    np.testing.assert_allclose(other(node), fn(node), atol=1e-3)
+    grid = fn.brdf_grid()
+    between = THETA[:1]
+    built, interpolated = fn.brdf_at(*between[0, 2:]), other.brdf_at(*between[0, 2:])
+    assert fn.brdf_at(*between[0, 2:]) is built  # the passes of one θ share the table
+    np.testing.assert_allclose(np.asarray(built.coef), np.asarray(grid.build_at(*between[0, 2:]).coef))
+    np.testing.assert_allclose(np.asarray(interpolated.coef), np.asarray(grid.at(*between[0, 2:]).coef))
+    assert not np.allclose(np.asarray(built.coef), np.asarray(interpolated.coef))
+    with pytest.raises(ValueError, match="brdf_between_nodes must be 'build_at' or 'at'"):
+        TracerSettings(brdf_between_nodes="nearest")
+
+
 def test_registered_emulator_builds_from_a_tiny_design_and_caches(tmp_path):
     assert "tracer-emulator" in FORWARDS
     # a plain GP: six design points cannot support the analytic mean's three extra inputs
