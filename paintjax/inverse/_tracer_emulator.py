@@ -13,7 +13,7 @@ the CRN evaluation and independent tracer runs (fresh generator arrays and rays,
 seed) at `SPREAD_THETA` (`seed_spread`) — the error of one finite tile and ray count against
 another realisation, including the transport's bias. The likelihood uses the same errors' heavy-tailed,
 regional model (`EmulatorError`: multivariate Student-t over the angles, ν ≈ 5 for the shipped wide emulator, scale falling
-about sixfold from the smoothest to the roughest platelets, the correlation between the angles that of the misses against
+about eightfold from the smoothest to the roughest platelets, the correlation between the angles that of the misses against
 independent runs) plus the **run-to-run terms** (`RunToRun`), fitted to the emulator's misses against
 `INDEPENDENT_RUNS` independent tracer runs: the CRN tracer's bias against fresh arrays, linear over the box
 (the transported tilts of one reference array are not de-overlapped again, so the CRN tracer is brighter at
