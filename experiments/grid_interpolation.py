@@ -231,7 +231,9 @@ def plot_inverse_grid(summary: dict, path: Path) -> None:
             v = 100 * max(c[method].values())
             ax.text(c["sigma_um"], c["tau_um"], f"{v:.1f}", ha="center", va="center", fontsize=6, color="w" if v < 3 else "r")
         ax.set_xscale("log"), ax.set_yscale("log")
-        ax.set_xlabel("σ [µm]"), ax.set_ylabel("τ [µm]")
+        ax.set_xticks(s_nodes, [f"{1000 * v:.0f}" for v in s_nodes]), ax.set_yticks(t_nodes, [f"{v:.2f}" for v in t_nodes])
+        ax.set_xticks([], minor=True), ax.set_yticks([], minor=True)
+        ax.set_xlabel("σ [nm] (grid nodes)"), ax.set_ylabel("τ [µm] (grid nodes)")
         ax.set_title(f"`{method}` vs direct table: worst L1 over 0–80° [%] (goal 3)", fontsize=9)
         fig.colorbar(im, ax=ax)
     ax = axes[2]
