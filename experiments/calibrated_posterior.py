@@ -15,10 +15,13 @@
   p-value of the L* deviance.
 * *The emulator where the posteriors lie.* Direct tracer runs at `--check-draws` draws of each run with free
   inputs, with common random numbers (the GP's own error there) and independent (what a panel is, against
-  the likelihood's whole residual law), per angle.
+  the likelihood's whole residual law), per angle; and `--arrays` independent runs per draw, whose mean (the
+  expected L* over platelet arrays) judges the emulator and the CRN tracer alike. `--checks-only` redoes these
+  checks at the draws stored in an earlier summary.
 
 Writes experiments/output/calibrated_posterior/{summary.json, <panel>_*.nc, calibrated_posterior.png}.
 Run from the repository root: python experiments/calibrated_posterior.py [--build-only] [--definition local_pv|scan_pv]
+[--arrays N] [--checks-only]
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ from paintjax.inverse import MAX_STEPS, SIGMA_DEFINITIONS, WIDE_TRACER_BOX, buil
 OUT = Path("experiments/output/calibrated_posterior")
 BOX = WIDE_TRACER_BOX
 TILT_PLATELETS = 200
+ARRAYS = 4  # independent arrays per check draw: their mean is the expected L* the emulator is judged against
 
 
 def emulator(progress: bool = True):
@@ -49,28 +53,38 @@ def emulator(progress: bool = True):
     return em
 
 
-def emulator_at_posterior(em, runs: dict, per_run: int, seed: int) -> dict:
-    """The emulator where the posteriors with free inputs lie, at `per_run` draws of each:
-    * its GP against the direct tracer with common random numbers (what the GP emulates; the CRN tracer's bias
-      added back), judged by the likelihood's Student-t (`EmulatorError`): the emulator's own error there;
-    * the emulator against independent tracer runs (fresh arrays and rays, seeds 3000 + i: what a measured panel
-      is), judged by the likelihood's whole residual law (Student-t ⊕ run-to-run spread ⊕ the bias's variance),
-      its central 68 % and 95 % intervals per draw and angle from 4000 draws of the law."""
-    from paintjax.inverse import direct_tracer, emulator_check, independent_runs
-
+def posterior_check_draws(em, runs: list, per_run: int, seed: int) -> np.ndarray:
+    """`per_run` draws of each posterior in `runs`, in the emulator's parameter order."""
     rng = np.random.default_rng(seed)
-    cols = None
     draws = []
     for r in runs:
         cols = [r.names.index(k) for k in em.parameter_names]
         draws.append(r.samples[rng.choice(r.samples.shape[0], per_run, replace=False)][:, cols])
-    x = np.concatenate(draws)
+    return np.concatenate(draws)
+
+
+def emulator_at_posterior(em, x: np.ndarray, seed: int, arrays: int = ARRAYS) -> dict:
+    """The emulator where the posteriors with free inputs lie, at the draws x:
+    * its GP against the direct tracer with common random numbers (what the GP emulates; the CRN tracer's bias
+      added back), judged by the likelihood's Student-t (`EmulatorError`): the emulator's own error there;
+    * the emulator against one independent tracer run per draw (fresh array and rays, seeds 3000 + 1000·seed + i:
+      what a measured panel is), judged by the likelihood's whole residual law (Student-t ⊕ run-to-run spread ⊕
+      the bias's variance), its central 68 % and 95 % intervals per draw and angle from 4000 draws of the law;
+    * the emulator and the CRN tracer against the mean over `arrays` independent runs per draw (seeds + 100·j):
+      the expected L* over platelet arrays, which a panel's millimetre-wide spot averages over, with its standard
+      error. A single run, CRN or independent, carries its own array's deviation, which is large where the
+      platelets are smooth and the tilt law wide, so only the mean says how far the emulator is from the tracer."""
+    from paintjax.inverse import direct_tracer, emulator_check, independent_runs
+
+    if not 1 <= arrays <= 10 or len(x) > 100:
+        raise ValueError(f"arrays must lie in [1, 10] and the draws number at most 100, got {arrays}, {len(x)}")
+    rng = np.random.default_rng(seed)
     z = em.unit_coordinates(x)
     bias = np.zeros((len(x), len(em.angles))) if em.run_to_run is None else np.asarray(em.run_to_run.mean(z))
     t0 = time.perf_counter()
     fn = direct_tracer(em)
     direct = np.asarray(fn(x))
-    fresh = independent_runs(fn, x, [3000 + seed * 1000 + i for i in range(len(x))])["L"]
+    fresh = np.stack([independent_runs(fn, x, [3000 + seed * 1000 + 100 * j + i for i in range(len(x))])["L"] for j in range(arrays)])
     seconds = time.perf_counter() - t0
     pred = np.asarray(em(x))
     gp = pred + bias
@@ -79,16 +93,63 @@ def emulator_at_posterior(em, runs: dict, per_run: int, seed: int) -> dict:
     scale = np.asarray(em.error.scale_at(z))
     law = np.asarray(em.sample_residual(rng, np.zeros((4000 * len(x), len(em.angles))), np.tile(x, (4000, 1)))).reshape(4000, len(x), -1)
     lo68, hi68, lo95, hi95 = np.quantile(law, [0.16, 0.84, 0.025, 0.975], axis=0)
-    made = np.all(np.isfinite(fresh), axis=1)
-    e = (pred - fresh)[made]
-    return {"draws": x.tolist(), "emulator_minus_tracer": d.tolist(), "rms": np.asarray(c["rms"]).tolist(), "max_abs": np.asarray(c["max_abs"]).tolist(),
-            "median_abs": np.median(np.abs(d), 0).tolist(), "t_scale_at_draws": np.median(scale, 0).tolist(),
-            "within_t_68": float(np.mean(np.abs(d / scale) <= _t_quantile(em.error.df, 0.84))),
-            "within_t_95": float(np.mean(np.abs(d / scale) <= _t_quantile(em.error.df, 0.975))),
-            "emulator_minus_independent": e.tolist(), "independent_rms": np.sqrt(np.mean(e**2, 0)).tolist(),
-            "independent_mean": e.mean(0).tolist(), "independent_max_abs": np.abs(e).max(0).tolist(),
-            "within_law_68": float(np.mean((e >= lo68[made]) & (e <= hi68[made]))),
-            "within_law_95": float(np.mean((e >= lo95[made]) & (e <= hi95[made]))), "tracer_seconds": seconds}
+    made = np.all(np.isfinite(fresh[0]), axis=1)
+    e = (pred - fresh[0])[made]
+    out = {"draws": x.tolist(), "emulator_minus_tracer": d.tolist(), "rms": np.asarray(c["rms"]).tolist(), "max_abs": np.asarray(c["max_abs"]).tolist(),
+           "median_abs": np.median(np.abs(d), 0).tolist(), "t_scale_at_draws": np.median(scale, 0).tolist(),
+           "within_t_68": float(np.mean(np.abs(d / scale) <= _t_quantile(em.error.df, 0.84))),
+           "within_t_95": float(np.mean(np.abs(d / scale) <= _t_quantile(em.error.df, 0.975))),
+           "emulator_minus_independent": e.tolist(), "independent_rms": np.sqrt(np.mean(e**2, 0)).tolist(),
+           "independent_mean": e.mean(0).tolist(), "independent_max_abs": np.abs(e).max(0).tolist(),
+           "within_law_68": float(np.mean((e >= lo68[made]) & (e <= hi68[made]))),
+           "within_law_95": float(np.mean((e >= lo95[made]) & (e <= hi95[made]))), "tracer_seconds": seconds}
+    if arrays > 1:
+        made = np.all(np.isfinite(fresh), axis=(0, 2))
+        mean, sd = fresh[:, made].mean(0), fresh[:, made].std(0, ddof=1)
+        se = sd / np.sqrt(arrays)
+        em_d, crn_d = pred[made] - mean, direct[made] - mean
+        out["array_mean"] = {
+            "arrays": arrays, "draws_with_arrays": int(made.sum()), "mean": mean.tolist(), "sd": sd.tolist(), "se": se.tolist(),
+            "emulator_minus_mean": em_d.tolist(), "crn_minus_mean": crn_d.tolist(),
+            "emulator_rms": np.sqrt(np.mean(em_d**2, 0)).tolist(), "emulator_max_abs": np.abs(em_d).max(0).tolist(),
+            "crn_rms": np.sqrt(np.mean(crn_d**2, 0)).tolist(), "crn_max_abs": np.abs(crn_d).max(0).tolist(),
+            "sd_rms": np.sqrt(np.mean(sd**2, 0)).tolist(),
+            # cells where the emulator is more than 3 L* from the expected L* beyond two standard errors of the mean
+            "beyond_3": int(np.sum(np.abs(em_d) - 2.0 * se > 3.0)), "cells": int(em_d.size)}
+    return out
+
+
+def report_check(name: str, chk: dict) -> None:
+    print(f"{name}: at {len(chk['draws'])} posterior draws, the GP − CRN tracer: RMS {np.round(chk['rms'], 2).tolist()}, "
+          f"max {np.round(chk['max_abs'], 1).tolist()}, within the t law's 68 / 95 % intervals: "
+          f"{chk['within_t_68']:.0%} / {chk['within_t_95']:.0%}; the emulator − independent runs: RMS "
+          f"{np.round(chk['independent_rms'], 2).tolist()}, mean {np.round(chk['independent_mean'], 2).tolist()}, within the "
+          f"likelihood's law's 68 / 95 % intervals: {chk['within_law_68']:.0%} / {chk['within_law_95']:.0%} "
+          f"({chk['tracer_seconds']:.0f} s of tracing)", flush=True)
+    a = chk.get("array_mean")
+    if a:
+        print(f"{name}: against the mean of {a['arrays']} independent arrays per draw (spread between arrays, RMS over draws "
+              f"{np.round(a['sd_rms'], 2).tolist()}): the emulator RMS {np.round(a['emulator_rms'], 2).tolist()}, max "
+              f"{np.round(a['emulator_max_abs'], 1).tolist()} ({a['beyond_3']} of {a['cells']} draw-angle cells beyond 3 L* by more than "
+              f"2 SE); the CRN tracer RMS {np.round(a['crn_rms'], 2).tolist()}, max {np.round(a['crn_max_abs'], 1).tolist()}", flush=True)
+
+
+def checks_only(em, path: Path, seed: int, arrays: int) -> int:
+    """Redo `emulator_at_posterior` at the draws stored in `path` (an earlier run's summary) and update it."""
+    import json
+
+    if not path.exists():
+        raise SystemExit(f"{path} does not exist: run the experiment without --checks-only first")
+    out = json.loads(path.read_text())
+    for name, panel in out["panels"].items():
+        if "emulator_at_posterior" not in panel:
+            raise SystemExit(f"{path} has no check draws for {name}: run the experiment with --check-draws > 0")
+        chk = emulator_at_posterior(em, np.asarray(panel["emulator_at_posterior"]["draws"]), seed, arrays)
+        panel["emulator_at_posterior"] = chk
+        report_check(name, chk)
+    atomic_write_json(path, out)
+    print(f"updated {path}", flush=True)
+    return 0
 
 
 def _t_quantile(df: float, q: float) -> float:
@@ -143,6 +204,10 @@ def main(argv=None) -> int:
                          "other readings goes to experiments/output/calibrated_posterior_<definition>/")
     ap.add_argument("--check-draws", type=int, default=4, help="direct tracer runs (CRN and independent) at this many draws of each "
                     "posterior with free inputs, to measure the emulator's error where the posteriors lie (0: skip)")
+    ap.add_argument("--arrays", type=int, default=ARRAYS, help="independent tracer runs (fresh arrays) per check draw; with more than "
+                    "one, the emulator and the CRN tracer are also compared with their mean, the expected L*")
+    ap.add_argument("--checks-only", action="store_true", help="redo only the checks of the emulator where the posteriors lie, at the "
+                    "draws stored in an earlier run's summary.json, and update it")
     args = ap.parse_args(argv)
     enable_compilation_cache()
     t0 = time.perf_counter()
@@ -150,6 +215,8 @@ def main(argv=None) -> int:
     if args.build_only:
         return 0
     out_dir = OUT if args.definition == "rq" else OUT.with_name(f"{OUT.name}_{args.definition}")
+    if args.checks_only:
+        return checks_only(em, out_dir / "summary.json", args.seed, args.arrays)
     reading = build_reading_model(progress=True)
     out = {"box": BOX, "tilt_platelets": TILT_PLATELETS, "sigma_definition": args.definition, "emulator": {
         "held_out_rms": em.held_out_rms, "held_out_max": em.held_out_max, "error_sd": np.asarray(em.error_sd),
@@ -176,14 +243,9 @@ def main(argv=None) -> int:
         out["panels"][name] = {"measured": s.L_star, "runs": runs, "verdict": result["verdict"]}
         free_runs = [result[k]["posterior"] for k in ("L* alone", "L* and inputs")]
         if args.check_draws > 0:
-            chk = emulator_at_posterior(em, free_runs, args.check_draws, args.seed)
+            chk = emulator_at_posterior(em, posterior_check_draws(em, free_runs, args.check_draws, args.seed), args.seed, args.arrays)
             out["panels"][name]["emulator_at_posterior"] = chk
-            print(f"{name}: at {len(chk['draws'])} posterior draws, the GP − CRN tracer: RMS {np.round(chk['rms'], 2).tolist()}, "
-                  f"max {np.round(chk['max_abs'], 1).tolist()}, within the t law's 68 / 95 % intervals: "
-                  f"{chk['within_t_68']:.0%} / {chk['within_t_95']:.0%}; the emulator − independent runs: RMS "
-                  f"{np.round(chk['independent_rms'], 2).tolist()}, mean {np.round(chk['independent_mean'], 2).tolist()}, within the "
-                  f"likelihood's law's 68 / 95 % intervals: {chk['within_law_68']:.0%} / {chk['within_law_95']:.0%} "
-                  f"({chk['tracer_seconds']:.0f} s of tracing)", flush=True)
+            report_check(name, chk)
     out["seconds"] = time.perf_counter() - t0
     atomic_write_json(out_dir / "summary.json", out)
     print(f"figure: {plot(out, out_dir / 'calibrated_posterior.png')}; done in {out['seconds']:.0f} s", flush=True)
