@@ -108,7 +108,8 @@ class TracerSettings:
             traced in a second pass with the same seed (see the module docstring).
         brdf_between_nodes: how the platelet BRDF at (σ, τ) is made from the grid's tables: "build_at"
             (default: a table built from the in-plane lobes interpolated there, `BRDFTableGrid.build_at`;
-            over the wide box's grid within 0.6–7.7 % L1 of a table built directly, 4 of 36 cells above 3 %)
+            over the wide box's grid within 0.6–7.7 % L1 of a table built directly, 4 of 36 cells above 3 %, 3 of them beyond
+            the spread of two direct tables from other profiles)
             or "at" (the differentiable interpolation of the tables, `BRDFTableGrid.at`; up to 12.7 %,
             13 cells above 3 %, moving L* by up to 3 at the steep corner: `python
             experiments/grid_interpolation.py --inverse-grid`).
