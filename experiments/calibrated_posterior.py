@@ -95,7 +95,7 @@ def emulator_at_posterior(em, x: np.ndarray, seed: int, arrays: int = ARRAYS) ->
     lo68, hi68, lo95, hi95 = np.quantile(law, [0.16, 0.84, 0.025, 0.975], axis=0)
     made = np.all(np.isfinite(fresh[0]), axis=1)
     e = (pred - fresh[0])[made]
-    out = {"draws": x.tolist(), "emulator_minus_tracer": d.tolist(), "rms": np.asarray(c["rms"]).tolist(), "max_abs": np.asarray(c["max_abs"]).tolist(),
+    out = {"parameters": list(em.parameter_names), "draws": x.tolist(), "emulator_minus_tracer": d.tolist(), "rms": np.asarray(c["rms"]).tolist(), "max_abs": np.asarray(c["max_abs"]).tolist(),
            "median_abs": np.median(np.abs(d), 0).tolist(), "t_scale_at_draws": np.median(scale, 0).tolist(),
            "within_t_68": float(np.mean(np.abs(d / scale) <= _t_quantile(em.error.df, 0.84))),
            "within_t_95": float(np.mean(np.abs(d / scale) <= _t_quantile(em.error.df, 0.975))),
@@ -109,7 +109,7 @@ def emulator_at_posterior(em, x: np.ndarray, seed: int, arrays: int = ARRAYS) ->
         se = sd / np.sqrt(arrays)
         em_d, crn_d = pred[made] - mean, direct[made] - mean
         out["array_mean"] = {
-            "arrays": arrays, "draws_with_arrays": int(made.sum()), "mean": mean.tolist(), "sd": sd.tolist(), "se": se.tolist(),
+            "arrays": arrays, "draws_with_arrays": int(made.sum()), "draw_index": np.flatnonzero(made).tolist(), "mean": mean.tolist(), "sd": sd.tolist(), "se": se.tolist(),
             "emulator_minus_mean": em_d.tolist(), "crn_minus_mean": crn_d.tolist(),
             "emulator_rms": np.sqrt(np.mean(em_d**2, 0)).tolist(), "emulator_max_abs": np.abs(em_d).max(0).tolist(),
             "crn_rms": np.sqrt(np.mean(crn_d**2, 0)).tolist(), "crn_max_abs": np.abs(crn_d).max(0).tolist(),
@@ -134,6 +134,43 @@ def report_check(name: str, chk: dict) -> None:
               f"2 SE); the CRN tracer RMS {np.round(a['crn_rms'], 2).tolist()}, max {np.round(a['crn_max_abs'], 1).tolist()}", flush=True)
 
 
+def plot_checks(out: dict, path: Path) -> Path | None:
+    """Per panel and angle, at each check draw: the emulator and the CRN tracer minus the mean of the independent
+    arrays (± 2 SE of that mean), draws ordered by σ."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = {n: p["emulator_at_posterior"] for n, p in out["panels"].items() if "array_mean" in p.get("emulator_at_posterior", {})}
+    if not panels:
+        return None
+    angles = (15, 25, 45, 75, 110)
+    fig, axes = plt.subplots(len(panels), len(angles), figsize=(15, 3.2 * len(panels)), squeeze=False)
+    for row, (name, chk) in zip(axes, panels.items()):
+        a = chk["array_mean"]
+        sigma = 1000 * np.asarray(chk["draws"])[a["draw_index"], chk["parameters"].index("sigma")]
+        order = np.argsort(sigma)
+        em, crn, se = (np.asarray(a[k])[order] for k in ("emulator_minus_mean", "crn_minus_mean", "se"))
+        for k, ax in enumerate(row):
+            pos = np.arange(len(order))
+            ax.axhspan(-3, 3, color="0.9", label="±3 L* (goal)")
+            ax.errorbar(pos - 0.12, em[:, k], yerr=2 * se[:, k], fmt="o", color="C0", ms=4, capsize=2, label="emulator − array mean (± 2 SE)")
+            ax.plot(pos + 0.12, crn[:, k], "s", color="C3", ms=4, label="CRN tracer − array mean")
+            ax.axhline(0, color="k", lw=0.6)
+            ax.set_xticks(pos, [f"{v:.0f}" for v in sigma[order]], fontsize=7)
+            ax.set_xlabel("check draw's σ [nm]", fontsize=8)
+            ax.set_title(f"{name}, {angles[k]}°", fontsize=9)
+        row[0].set_ylabel(f"L* − mean of {a['arrays']} arrays")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle("The emulator where the posteriors lie, against the tracer's expected L* "
+                 "(python experiments/calibrated_posterior.py --checks-only)", fontsize=10)
+    fig.tight_layout()
+    res = atomic_savefig(fig, path, dpi=120)
+    plt.close(fig)
+    return res
+
+
 def checks_only(em, path: Path, seed: int, arrays: int) -> int:
     """Redo `emulator_at_posterior` at the draws stored in `path` (an earlier run's summary) and update it."""
     import json
@@ -148,7 +185,7 @@ def checks_only(em, path: Path, seed: int, arrays: int) -> int:
         panel["emulator_at_posterior"] = chk
         report_check(name, chk)
     atomic_write_json(path, out)
-    print(f"updated {path}", flush=True)
+    print(f"updated {path}; figure: {plot_checks(out, path.with_name('emulator_at_posterior.png'))}", flush=True)
     return 0
 
 
@@ -248,7 +285,8 @@ def main(argv=None) -> int:
             report_check(name, chk)
     out["seconds"] = time.perf_counter() - t0
     atomic_write_json(out_dir / "summary.json", out)
-    print(f"figure: {plot(out, out_dir / 'calibrated_posterior.png')}; done in {out['seconds']:.0f} s", flush=True)
+    print(f"figures: {plot(out, out_dir / 'calibrated_posterior.png')}, {plot_checks(out, out_dir / 'emulator_at_posterior.png')}; "
+          f"done in {out['seconds']:.0f} s", flush=True)
     return 0
 
 
