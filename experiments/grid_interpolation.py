@@ -19,7 +19,9 @@ flat surface's reflectance (impedance boundary) + 3 SE of the direct table + 2·
 the direct table's albedo, and the same for `build_at`; and reciprocity of both. A second direct table from
 other profiles (seed 1) measures the references' own statistical spread (their L1 against each other): a cell
 is over the goal beyond that spread when it is over 3 % against both direct tables and further from each than
-they are from each other. What the L1 does to L*: the tracer forward map (common
+they are from each other. Each cell also records where the q_z continuation starts in the direct table and in
+`build_at`'s (`BRDFTableGrid.build_arrays_at`): the construction switches at a coverage threshold, so the two
+can continue from different nodes. What the L1 does to L*: the tracer forward map (common
 random numbers, the main job's 65 536 rays × `--rays-factor`) at the cells where `at` is worst, with `at` and
 with `build_at` under the same seed, at Silver #1's published tilt law and a wide one.
 
@@ -133,13 +135,26 @@ INVERSE_INCIDENCES = (0.0, 20.0, 40.0, 60.0, 70.0, 80.0)
 ENERGY_INCIDENCES = (0.0, 20.0, 40.0, 60.0, 70.0, 80.0, 85.0)
 
 
+def _first_continued(arrays: dict) -> dict:
+    """Where the q_z continuation starts: the first continued incidence [deg] (None: none) and the in-plane coverage
+    of the incidences before and at it (the reference's coverage is ≥ `MIN_COVERAGE`, the next one's below)."""
+    continued = np.asarray(arrays["continued"], bool)
+    if not continued.any():
+        return {"from_deg": None}
+    j = int(np.argmax(continued))
+    cover = np.asarray(arrays["lobe_coverage"], float)
+    return {"from_deg": float(np.asarray(arrays["incidence_deg"])[j]), "coverage_reference": float(cover[j - 1]), "coverage_first": float(cover[j])}
+
+
 def audit_cell(grid, q, options: dict, wo, wt, rng) -> dict:
     """One cell centre q = (σ, τ) of the inverse layer's grid: `at` and `build_at` against a direct table, their energy and reciprocity."""
     arrays, _ = platelet_table_arrays(*q, **options)
     direct = TabulatedBRDF.from_arrays(arrays, coherent=grid.coherent, coherent_width=grid.coherent_width, n_medium=grid.n_medium)
     second = TabulatedBRDF.from_arrays(platelet_table_arrays(*q, seed=1, **options)[0], coherent=grid.coherent,
                                        coherent_width=grid.coherent_width, n_medium=grid.n_medium)
-    at, built = grid.at(*q), grid.build_at(*q)
+    built_arrays = grid.build_arrays_at(*q)
+    at = grid.at(*q)
+    built = TabulatedBRDF.from_arrays(built_arrays, coherent=grid.coherent, coherent_width=grid.coherent_width, n_medium=grid.n_medium)
     mu_nodes = np.cos(np.deg2rad(np.asarray(arrays["incidence_deg"], float)))
     metal = complex(np.asarray(aluminium_index(grid.wavelength_um)))
 
@@ -164,6 +179,8 @@ def audit_cell(grid, q, options: dict, wo, wt, rng) -> dict:
     return {"sigma_um": q[0], "tau_um": q[1], "at": {str(ti): l1(at, direct, ti, wo, wt) for ti in INVERSE_INCIDENCES},
             "build_at": {str(ti): l1(built, direct, ti, wo, wt) for ti in INVERSE_INCIDENCES}, "energy": energy,
             "direct_vs_direct": {str(ti): l1(second, direct, ti, wo, wt) for ti in INVERSE_INCIDENCES},
+            # where the q_z continuation starts (None: not continued) and the in-plane coverage there, direct and build_at
+            "continuation": {"direct": _first_continued(arrays), "build_at": _first_continued(built_arrays)},
             "at_vs_second": {str(ti): l1(at, second, ti, wo, wt) for ti in INVERSE_INCIDENCES},
             "build_at_vs_second": {str(ti): l1(built, second, ti, wo, wt) for ti in INVERSE_INCIDENCES},
             "energy_ok": all(e["excess_over_flat"] <= e["allowed_excess"] for e in energy),
@@ -196,15 +213,17 @@ def audit_inverse_grid(wo, wt, quick: bool = False) -> dict:
     # Beyond the references' own spread: over the goal against both direct tables (profile seeds 0 and 1) and
     # further from each than the two are from each other.
     over = {m: [{"sigma_um": c["sigma_um"], "tau_um": c["tau_um"], "incidence_deg": float(ti), "l1": v, "l1_vs_second": c[f"{m}_vs_second"][ti],
-                 "direct_vs_direct": c["direct_vs_direct"][ti],
+                 "direct_vs_direct": c["direct_vs_direct"][ti], "continuation": c["continuation"],
                  "beyond_reference_spread": min(v, c[f"{m}_vs_second"][ti]) > max(GOAL, c["direct_vs_direct"][ti])}
                 for c in cells for ti, v in c[m].items() if v > GOAL] for m in ("at", "build_at")}
+    switched = [c for c in cells if c["continuation"]["direct"]["from_deg"] != c["continuation"]["build_at"]["from_deg"]]
     return {"goal": GOAL, "sigma_nodes_um": s_nodes.tolist(), "tau_nodes_um": t_nodes.tolist(), "table_options": options,
             "incidences_deg": INVERSE_INCIDENCES, "energy_incidences_deg": ENERGY_INCIDENCES, "cells": cells, "worst": worst,
             "cells_over_goal": {m: len({(o["sigma_um"], o["tau_um"]) for o in over[m]}) for m in over}, "over_goal": over,
             "cells_over_goal_beyond_reference_spread": {m: len({(o["sigma_um"], o["tau_um"]) for o in over[m] if o["beyond_reference_spread"]})
                                                         for m in over},
             "direct_vs_direct_worst": max(max(c["direct_vs_direct"].values()) for c in cells),
+            "continuation_switched": [{"sigma_um": c["sigma_um"], "tau_um": c["tau_um"], **c["continuation"]} for c in switched],
             "energy_ok": all(c["energy_ok"] for c in cells), "reciprocity_max_relative": max(c["reciprocity_max_relative"] for c in cells)}
 
 
@@ -292,7 +311,8 @@ def main(argv=None) -> int:
         print(f"worst: at {100 * summary['worst']['at']:.2f} %, build_at {100 * summary['worst']['build_at']:.2f} %; cells over "
               f"{100 * GOAL:g} %: {summary['cells_over_goal']}, of them beyond the two direct tables' spread "
               f"{summary['cells_over_goal_beyond_reference_spread']}; energy {'ok' if summary['energy_ok'] else 'EXCEEDED'}; reciprocity "
-              f"{summary['reciprocity_max_relative']:.1e}")
+              f"{summary['reciprocity_max_relative']:.1e}; the q_z continuation starts elsewhere than in the direct table in "
+              f"{len(summary['continuation_switched'])} cells: {summary['continuation_switched']}")
         return 0
     points, ratios = (POINTS[:2], RATIOS[:2]) if args.quick else (POINTS, RATIOS)
     wo, wt = hemisphere_directions()  # the tests' quadrature (tests/test_platelet_brdf_truth.py)

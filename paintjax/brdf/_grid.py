@@ -113,15 +113,23 @@ class BRDFTableGrid(eqx.Module):
     method: str = eqx.field(static=True, default="abel")
 
     def build_at(self, sigma_um: float, tau_um: float) -> TabulatedBRDF:
-        """Table at (σ, τ) [µm] built from the in-plane source lobes interpolated there (host side, concrete
+        """`TabulatedBRDF` of `build_arrays_at` (see there)."""
+        arrays = self.build_arrays_at(sigma_um, tau_um)
+        return TabulatedBRDF.from_arrays(arrays, coherent=self.coherent, coherent_width=self.coherent_width, n_medium=self.n_medium)
+
+    def build_arrays_at(self, sigma_um: float, tau_um: float) -> dict:
+        """Table arrays at (σ, τ) [µm] built from the in-plane source lobes interpolated there (host side, concrete
         values, ≈ 0.5 s): the diffuse lobes in log, the coherent part, reflected and absorbed fractions and
         their errors by monotone cubics in log σ then log τ, then the table construction of a direct
         table. On grids of ratio ≤ 1.41 it stays within 2.6 % (scattered-power L1) of a table built
         there at 0–80°, where `at` (jittable and differentiable) is 0.9–7.2 % off; at ratio 2 it is
         5–15 % off (tests/test_platelet_brdf_truth.py, docs/platelet_brdf.md). It is not smooth in
         (σ, τ): each point's lobe fit (non-negative least squares) is its own, so 1 % steps move the
-        tracer's L* by ~0.05 at random; finite-difference fits and the common-random-number tracer
-        forward map use the continuous `at`. Outside the grid a ValueError names the parameter."""
+        tracer's L* by ~0.05 at random, and where an incidence's in-plane coverage lies at the q_z
+        continuation's threshold (`MIN_COVERAGE`) the continuation may start one node earlier or later than
+        in a direct table (the arrays' `continued` and `lobe_coverage` say where). Finite-difference fits
+        use the continuous `at`; the tracer forward map uses this by default (`TracerSettings.brdf_between_nodes`).
+        Outside the grid a ValueError names the parameter."""
         from scipy.interpolate import PchipInterpolator
 
         q = []
@@ -145,7 +153,7 @@ class BRDFTableGrid(eqx.Module):
         arrays = _table_arrays_from_lobes(lobes, method=self.method, num_widths=int(self.widths.shape[0]), min_width=2.0 / (k * q[1]),
                                           kroughness2=_kroughness2(q[0], self.wavelength_um, self.n_medium))
         arrays["lobe_relative_se"] = interpolate(lob["lobe_relative_se"])
-        return TabulatedBRDF.from_arrays(arrays, coherent=self.coherent, coherent_width=self.coherent_width, n_medium=self.n_medium)
+        return arrays
 
     def _position(self, value, nodes, name):
         n = len(nodes)
