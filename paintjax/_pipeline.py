@@ -9,6 +9,7 @@ virtual spectrophotometer and returns the L* with standard errors and the energy
 from __future__ import annotations
 
 import hashlib
+import inspect
 import math
 import sys
 import time
@@ -45,9 +46,12 @@ PAINT_RANGES = {"shape": Range(0.0, None, lo_open=True, why="tilt gamma shape"),
 ARRAY_RANGES = {"pvc": Range(0.0, MAX_PVC, lo_open=True), "d50": Range(*D50_RANGE_UM, "µm"),
                 "platelet_thickness": Range(0.0, None, "µm", lo_open=True)}
 #: `simulate`'s scalar arguments, checked before any table, array or trace (the ray count by `check_ray_count`).
+#: The most independent arrays `simulate` averages.
+MAX_ARRAYS = 64
 SIMULATE_RANGES = {**PAINT_RANGES, "thickness": Range(0.0, None, "µm", lo_open=True), **ARRAY_RANGES,
                    "reflectance": Range(0.0, 1.0), "primer_albedo": Range(0.0, 1.0), "waviness": Range(0.0, MAX_WAVINESS_DEG, "degrees"),
-                   "illumination_deg": Range(0.0, MAX_POLAR_DEG, "degrees", lo_open=True), "seed": SEED}
+                   "illumination_deg": Range(0.0, MAX_POLAR_DEG, "degrees", lo_open=True), "seed": SEED,
+                   "arrays": Range(1, MAX_ARRAYS, integer=True)}
 
 
 def array_overrides(s, *, pvc=None, thickness=None, d50=None, platelet_thickness=None) -> dict:
@@ -226,6 +230,36 @@ def platelet_brdf(kind: str, *, sigma: float, tau: float, n: float, reflectance=
     return platelet_brdf_table(sigma, tau, n_medium=n, method=method, correlation=correlation, **wl)
 
 
+def _mean_over_arrays(runs: list[dict], seconds: float) -> dict:
+    """`simulate`'s result for several independent arrays: the mean of every per-angle number, and L*'s standard
+    error from the arrays' spread (which holds the rays' noise too)."""
+    out = dict(runs[0])
+    n = len(runs)
+    for key in ("reflectance_factor", "L_star", "Lab", "XYZ", "spectral_reflectance_factor", "histogram_reflectance_factor"):
+        if out.get(key) is not None:
+            out[key] = np.mean([np.asarray(r[key], float) for r in runs], axis=0)
+    L = np.asarray([r["L_star"] for r in runs], float)
+    sd = L.std(axis=0, ddof=1)
+    out["L_star_se"] = sd / np.sqrt(n)
+    out["L_star_array_sd"] = sd
+    out["L_star_rays_se"] = np.sqrt(np.sum(np.asarray([r["L_star_se"] for r in runs], float) ** 2, axis=0)) / n
+    out["L_star_per_array"] = L
+    out["reflectance_factor_se"] = np.asarray([r["reflectance_factor"] for r in runs], float).std(axis=0, ddof=1) / np.sqrt(n)
+    if out.get("Lab") is not None:
+        out["Lab_se"] = np.asarray([r["Lab"] for r in runs], float).std(axis=0, ddof=1) / np.sqrt(n)
+    out["energy"] = {k: float(np.mean([r["energy"][k] for r in runs])) for k in out["energy"]}
+    out["resolved"] = np.all([np.asarray(r["resolved"]) for r in runs], axis=0)
+    flop = [r["flop_index"] for r in runs]
+    out["flop_index"] = None if None in flop else float(np.mean(flop))
+    out["rays"] = int(sum(r["rays"] for r in runs))
+    out["tracing_seconds"] = float(sum(r["tracing_seconds"] for r in runs))
+    out["seconds"] = seconds
+    out["arrays"] = n
+    out["platelets"] = int(round(np.mean([r["platelets"] for r in runs])))
+    out["tilt_ks"] = min((r["tilt_ks"] for r in runs), key=lambda k: k["p"])
+    return out
+
+
 def simulate(
     sample: str = "silver1",
     *,
@@ -255,8 +289,15 @@ def simulate(
     options=None,
     spectral: bool = False,
     progress: bool = False,
+    arrays: int = 1,
 ) -> dict:
     """Multi-angle tracer prediction for a sample with overrides, as the CLI's JSON dict (plus extras).
+
+    `arrays`: the number of independent platelet arrays traced (seeds `seed`, `seed` + 1, …; `MAX_ARRAYS` at
+    most). With one, "L_star_se" is the rays' standard error in that one array; an array of a finite tile is one
+    draw of the microstructure, and its L* scatters from array to array beyond that (several L* at 15° for wide tilt
+    laws of smooth platelets). With more, every number is the mean over the arrays and "L_star_se" its standard
+    error from their spread ("L_star_array_sd"; "L_star_rays_se" the rays' part, "L_star_per_array" each array's).
 
     `illumination_deg`, `aspecular_deg`: the instrument (`instrument_geometry`; default 45° and the five
     standard angles); `geometry`: any `Geometry` instead (`custom_geometry`: out-of-plane detectors, other
@@ -281,8 +322,18 @@ def simulate(
 
     t0 = time.perf_counter()
     given = dict(shape=shape, scale=scale, sigma=sigma, tau=tau, pvc=pvc, thickness=thickness, d50=d50, platelet_thickness=platelet_thickness,
-                 reflectance=reflectance, primer_albedo=primer_albedo, waviness=waviness, illumination_deg=illumination_deg, seed=seed)
+                 reflectance=reflectance, primer_albedo=primer_albedo, waviness=waviness, illumination_deg=illumination_deg, seed=seed,
+                 arrays=arrays)
     check_args(given, SIMULATE_RANGES, optional=("shape", "scale", "sigma", "tau", "pvc", "thickness", "d50", "platelet_thickness", "reflectance"))
+    if int(arrays) > 1:
+        # every other argument as given, one array per seed
+        kw = {k: v for k, v in locals().items() if k in inspect.signature(simulate).parameters and k not in ("sample", "seed", "arrays")}
+        runs = []
+        for i in range(int(arrays)):
+            if progress:
+                print(f"  array {i + 1} of {int(arrays)} (seed {int(seed) + i})", file=sys.stderr, flush=True)
+            runs.append(simulate(sample, **kw, seed=int(seed) + i, arrays=1))
+        return _mean_over_arrays(runs, time.perf_counter() - t0)
     s = load_sample(sample)
     # every cheap check before any table or array is built
     if rays is not None:

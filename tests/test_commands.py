@@ -94,6 +94,25 @@ def test_simulate_other_illuminations_are_reciprocal():
     assert abs(a["reflectance_factor"][0] - a["reflectance_factor"][1]) > 4 * np.hypot(*a["reflectance_factor_se"][:2])  # distinct angles
 
 
+def test_simulate_averages_independent_arrays():
+    """`arrays` traces one array per seed (seed, seed + 1, …) and reports their mean, with L*'s standard error
+    from their spread; a count outside [1, MAX_ARRAYS] is refused by name."""
+    from paintjax._pipeline import MAX_ARRAYS, simulate
+
+    kw = dict(brdf="kirchhoff", rays=2048)
+    one = [simulate("silver1", seed=s, **kw) for s in (4, 5)]
+    both = simulate("silver1", seed=4, arrays=2, **kw)
+    L = np.array([r["L_star"] for r in one])
+    np.testing.assert_allclose(both["L_star"], L.mean(0), rtol=1e-12)
+    np.testing.assert_allclose(both["L_star_array_sd"], L.std(0, ddof=1), rtol=1e-12)
+    np.testing.assert_allclose(both["L_star_se"], L.std(0, ddof=1) / np.sqrt(2), rtol=1e-12)
+    np.testing.assert_allclose(both["L_star_rays_se"], np.hypot(one[0]["L_star_se"], one[1]["L_star_se"]) / 2, rtol=1e-12)
+    assert both["arrays"] == 2 and both["rays"] == one[0]["rays"] + one[1]["rays"]
+    for bad in (0, MAX_ARRAYS + 1, 1.5):
+        with pytest.raises(ValueError, match="arrays"):
+            simulate("silver1", arrays=bad, **kw)
+
+
 def test_simulate_measured_follows_the_geometry():
     """The published L* are compared only in their own geometry; given values must match the detectors."""
     from paintjax._pipeline import instrument_geometry, measured_lightness

@@ -55,6 +55,10 @@ def register(sub) -> None:
                    "published values when the geometry is the standard five at 45°")
     p.add_argument("--rays", type=int, help=f"number of rays; default: as many as needed for an L* standard error ≤ {DEFAULT_TARGET_SE}")
     p.add_argument("--seed", type=int, default=0, help="random seed of the array and the rays (default 0)")
+    p.add_argument("--arrays", type=int, default=1,
+                   help="independent platelet arrays to trace (seeds SEED, SEED+1, …) and average: L* is their mean and its SE comes "
+                   "from their spread, which a finite tile's one array does not show (several L* at 15° for wide tilt laws of smooth "
+                   "platelets); default 1: one array, SE from its rays alone")
     p.add_argument("--single-scatter", action="store_true", help="score only the first scattering event of each path")
     p.add_argument("--spectral", action="store_true",
                    help="trace at 400, 450, …, 700 nm and combine under D65 and the CIE 1964 10° observer, as the instrument "
@@ -74,6 +78,7 @@ API_FLAGS = {"aspecular_deg": "--aspecular", "illumination_deg": "--illumination
              "lower pvc, a smaller tile, or thicker or wider platelets": "lower --pvc, or a larger --platelet-thickness or --d50"}
 _JSON_KEYS = ("aspecular_deg", "reflectance_factor", "L_star", "L_star_se", "energy", "rays", "seconds", "resolved", "flop_index")
 _SPECTRAL_KEYS = ("wavelengths_nm", "spectral_reflectance_factor", "Lab", "Lab_se")
+_ARRAYS_KEYS = ("arrays", "L_star_array_sd", "L_star_rays_se", "L_star_per_array")
 
 
 def _plot(r: dict, folder) -> str:
@@ -90,7 +95,8 @@ def _plot(r: dict, folder) -> str:
         published = r["inputs"]["measured"] is None  # the sample's values, with the instrument's repeatability
         ax.errorbar(gamma, r["measured_L_star"], yerr=0.3 if published else None, fmt="ko",
                     label=f"measured {r['sample']}" if published else "measured (given)")
-    ax.errorbar(gamma, r["L_star"], yerr=r["L_star_se"], fmt="s-", color="C0", label=f"tracer, {r['brdf']} platelets ({r['rays']} rays)")
+    arrays = f", mean of {r['arrays']} arrays" if r.get("arrays", 1) > 1 else ""
+    ax.errorbar(gamma, r["L_star"], yerr=r["L_star_se"], fmt="s-", color="C0", label=f"tracer, {r['brdf']} platelets ({r['rays']} rays{arrays})")
     ax.set_xlabel("aspecular angle [deg]")
     ax.set_ylabel("L*")
     ax.set_title(f"paintjax simulate: {r['sample']}, {r['illumination_deg']:g}° illumination, seed {r['seed']}")
@@ -112,16 +118,16 @@ def run(args) -> int:
         waviness=args.waviness, illumination_deg=args.illumination,
         aspecular_deg=None if args.aspecular is None else parse_distinct(args.aspecular, "--aspecular"),
         measured=None if args.measured is None else parse_floats(args.measured, "--measured"),
-        rays=args.rays, seed=args.seed, single_scatter=args.single_scatter, spectral=args.spectral, progress=True,
+        rays=args.rays, seed=args.seed, single_scatter=args.single_scatter, spectral=args.spectral, progress=True, arrays=args.arrays,
     )
     r["seed"] = args.seed
     r["inputs"] = {k: getattr(args, k) for k in ("shape", "scale", "sigma", "tau", "pvc", "thickness", "d50", "platelet_thickness", "brdf", "brdf_method", "correlation", "reflectance",
                                                  "primer_albedo", "waviness", "illumination", "aspecular", "measured", "rays", "seed",
-                                                 "single_scatter", "spectral")}
+                                                 "arrays", "single_scatter", "spectral")}
     atomic_write_json(f"{args.out}/simulate.json", r)
     png = _plot(r, args.out)
     if args.json:
-        print_json({k: r[k] for k in _JSON_KEYS + (_SPECTRAL_KEYS if args.spectral else ())})
+        print_json({k: r[k] for k in _JSON_KEYS + (_SPECTRAL_KEYS if args.spectral else ()) + (_ARRAYS_KEYS if args.arrays > 1 else ())})
         return 0
     print(f"Ray tracer, {r['sample']}: {r['brdf']}{' (in-plane lobe rotated)' if r['brdf_method'] == 'rotate' else ''}{' (exponential profiles)' if r['correlation'] == 'exponential' else ''} platelets, {r['platelets']} (median width {r['platelet_median_width_um']:.1f} µm, {r['platelet_thickness_um']:g} µm thick) in a {r['tile_um'][0]:.0f} × {r['tile_um'][1]:.0f} µm tile"
           f"{', detector aperture %.1f°' % r['aperture_deg'] if r['aperture_deg'] else ''}"
@@ -129,9 +135,14 @@ def run(args) -> int:
           f"{', spectral (D65, CIE 1964 10°; R factor = Y/100)' if args.spectral else ''}")
     lab, measured = r.get("Lab"), r["measured_L_star"]
     print(f"{r['illumination_deg']:g}° illumination")
-    print(f"{'aspecular':>10} {'R factor':>10} {'L*':>8} {'± SE':>6} {'measured':>9}" + (f" {'a*':>6} {'b*':>6}" if lab is not None else ""))
+    several = args.arrays > 1
+    if several:
+        print(f"mean of {args.arrays} independent arrays (seeds {args.seed}–{args.seed + args.arrays - 1}); SE from their spread")
+    print(f"{'aspecular':>10} {'R factor':>10} {'L*':>8} {'± SE':>6}" + (f" {'array SD':>9}" if several else "") + f" {'measured':>9}"
+          + (f" {'a*':>6} {'b*':>6}" if lab is not None else ""))
     for j, row in enumerate(zip(r["aspecular_deg"], r["reflectance_factor"], r["L_star"], r["L_star_se"])):
-        print(f"{row[0]:>9.0f}° {row[1]:>10.4f} {row[2]:>8.1f} {row[3]:>6.2f} " + (f"{measured[j]:>9.1f}" if measured is not None else f"{'—':>9}")
+        print(f"{row[0]:>9.0f}° {row[1]:>10.4f} {row[2]:>8.1f} {row[3]:>6.2f} " + (f"{r['L_star_array_sd'][j]:>9.2f} " if several else "")
+              + (f"{measured[j]:>9.1f}" if measured is not None else f"{'—':>9}")
               + (f" {lab[j][1]:>6.2f} {lab[j][2]:>6.2f}" if lab is not None else "") + ("" if r["resolved"][j] else "  not resolved"))
     if not all(r["resolved"]):
         print("not resolved: light reached that detector in fewer than half the batches, so its L* and SE rest on a few "
