@@ -139,8 +139,10 @@ class BRDFTableGrid(eqx.Module):
 
         def interpolate(values, log=False):
             v = np.log(np.maximum(values, 1e-300)) if log else np.asarray(values, float)
-            for axis, (nodes, x) in enumerate(zip((self.sigma_um, self.tau_um), q)):
-                v = PchipInterpolator(np.log(nodes), v, axis=0)(np.log(x)) if len(nodes) > 1 else v[0]
+            # scipy's PCHIP divides by the secant slopes: a subnormal one overflows to a zero derivative, as it should
+            with np.errstate(over="ignore"):
+                for nodes, x in zip((self.sigma_um, self.tau_um), q):
+                    v = PchipInterpolator(np.log(nodes), v, axis=0)(np.log(x)) if len(nodes) > 1 else v[0]
             return np.exp(v) if log else v
 
         lob = self.lobes
