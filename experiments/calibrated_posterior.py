@@ -77,7 +77,8 @@ def emulator_at_posterior(em, x: np.ndarray, seed: int, arrays: int = ARRAYS) ->
     from paintjax.inverse import direct_tracer, emulator_check, independent_runs
 
     if not 1 <= arrays <= 10 or len(x) > 100:
-        raise ValueError(f"arrays must lie in [1, 10] and the draws number at most 100, got {arrays}, {len(x)}")
+        raise ValueError(f"arrays must lie in [1, 10] and the draws number at most 100 (the seeds 3000 + 1000·seed + 100·j + i "
+                         f"of one seed's block must not reach the next), got {arrays}, {len(x)}")
     rng = np.random.default_rng(seed)
     z = em.unit_coordinates(x)
     bias = np.zeros((len(x), len(em.angles))) if em.run_to_run is None else np.asarray(em.run_to_run.mean(z))

@@ -148,13 +148,13 @@ def _first_continued(arrays: dict) -> dict:
 
 def audit_cell(grid, q, options: dict, wo, wt, rng) -> dict:
     """One cell centre q = (σ, τ) of the inverse layer's grid: `at` and `build_at` against a direct table, their energy and reciprocity."""
+    def table(a):  # a table read as the grid's own tables are
+        return TabulatedBRDF.from_arrays(a, coherent=grid.coherent, coherent_width=grid.coherent_width, n_medium=grid.n_medium)
+
     arrays, _ = platelet_table_arrays(*q, **options)
-    direct = TabulatedBRDF.from_arrays(arrays, coherent=grid.coherent, coherent_width=grid.coherent_width, n_medium=grid.n_medium)
-    second = TabulatedBRDF.from_arrays(platelet_table_arrays(*q, seed=1, **options)[0], coherent=grid.coherent,
-                                       coherent_width=grid.coherent_width, n_medium=grid.n_medium)
     built_arrays = grid.build_arrays_at(*q)
+    direct, second, built = table(arrays), table(platelet_table_arrays(*q, seed=1, **options)[0]), table(built_arrays)
     at = grid.at(*q)
-    built = TabulatedBRDF.from_arrays(built_arrays, coherent=grid.coherent, coherent_width=grid.coherent_width, n_medium=grid.n_medium)
     mu_nodes = np.cos(np.deg2rad(np.asarray(arrays["incidence_deg"], float)))
     metal = complex(np.asarray(aluminium_index(grid.wavelength_um)))
 

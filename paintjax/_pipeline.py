@@ -45,9 +45,9 @@ PAINT_RANGES = {"shape": Range(0.0, None, lo_open=True, why="tilt gamma shape"),
                 "sigma": LOBE_RANGES["sigma_um"], "tau": LOBE_RANGES["tau_um"]}
 ARRAY_RANGES = {"pvc": Range(0.0, MAX_PVC, lo_open=True), "d50": Range(*D50_RANGE_UM, "µm"),
                 "platelet_thickness": Range(0.0, None, "µm", lo_open=True)}
-#: `simulate`'s scalar arguments, checked before any table, array or trace (the ray count by `check_ray_count`).
 #: The most independent arrays `simulate` averages.
 MAX_ARRAYS = 64
+#: `simulate`'s scalar arguments, checked before any table, array or trace (the ray count by `check_ray_count`).
 SIMULATE_RANGES = {**PAINT_RANGES, "thickness": Range(0.0, None, "µm", lo_open=True), **ARRAY_RANGES,
                    "reflectance": Range(0.0, 1.0), "primer_albedo": Range(0.0, 1.0), "waviness": Range(0.0, MAX_WAVINESS_DEG, "degrees"),
                    "illumination_deg": Range(0.0, MAX_POLAR_DEG, "degrees", lo_open=True), "seed": SEED,
@@ -235,18 +235,22 @@ def _mean_over_arrays(runs: list[dict], seconds: float) -> dict:
     error from the arrays' spread (which holds the rays' noise too)."""
     out = dict(runs[0])
     n = len(runs)
+
+    def stacked(key):
+        return np.asarray([r[key] for r in runs], float)
+
     for key in ("reflectance_factor", "L_star", "Lab", "XYZ", "spectral_reflectance_factor", "histogram_reflectance_factor"):
         if out.get(key) is not None:
-            out[key] = np.mean([np.asarray(r[key], float) for r in runs], axis=0)
-    L = np.asarray([r["L_star"] for r in runs], float)
+            out[key] = stacked(key).mean(axis=0)
+    L = stacked("L_star")
     sd = L.std(axis=0, ddof=1)
     out["L_star_se"] = sd / np.sqrt(n)
     out["L_star_array_sd"] = sd
-    out["L_star_rays_se"] = np.sqrt(np.sum(np.asarray([r["L_star_se"] for r in runs], float) ** 2, axis=0)) / n
+    out["L_star_rays_se"] = np.sqrt(np.sum(stacked("L_star_se") ** 2, axis=0)) / n
     out["L_star_per_array"] = L
-    out["reflectance_factor_se"] = np.asarray([r["reflectance_factor"] for r in runs], float).std(axis=0, ddof=1) / np.sqrt(n)
-    if out.get("Lab") is not None:
-        out["Lab_se"] = np.asarray([r["Lab"] for r in runs], float).std(axis=0, ddof=1) / np.sqrt(n)
+    for key in ("reflectance_factor", "Lab"):
+        if out.get(key) is not None:
+            out[f"{key}_se"] = stacked(key).std(axis=0, ddof=1) / np.sqrt(n)
     out["energy"] = {k: float(np.mean([r["energy"][k] for r in runs])) for k in out["energy"]}
     out["resolved"] = np.all([np.asarray(r["resolved"]) for r in runs], axis=0)
     flop = [r["flop_index"] for r in runs]
