@@ -3,7 +3,8 @@
 * *Forward model.* A Gaussian-process emulator of the ray tracer (`paintjax.inverse.wide_tracer_emulator`,
   the registered forward "tracer-emulator-wide")
   over a box wide enough to hold what the inputs and the L* imply: shape 1.2–12, scale 0.5–5°,
-  σ 0.02–0.15 µm, τ 0.25–2.0 µm (BRDF-table grid 7 × 7 over σ, τ). Held-out error per angle reported.
+  σ 0.015–0.15 µm, τ 0.25–2.0 µm (BRDF-table grid 8 × 7 over σ, τ; each design run the mean over four reference
+  arrays). Held-out error per angle reported.
 * *Likelihoods.* L*: instrument repeatability 0.3 ⊕ a model discrepancy δ (normal) plus the emulator's own error
   (Student-t with a scale that varies over the box, fitted to its cross-validated errors, ⊕ the run-to-run spread
   and the bias's variance; the emulator predicts an independent run: the CRN tracer's bias subtracted).

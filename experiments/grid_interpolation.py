@@ -11,8 +11,8 @@ same table machinery as the wave tables), and the measured roughness (σ 0.051, 
 tables of 8 profiles too. Goal: within 3 %.
 
 `--inverse-grid` audits instead the grid the inverse layer traces through: the wave tables of the shipped
-emulator's tracer (`WIDE_TRACER_SETTINGS`: 7 × 7 nodes over σ 0.02–0.15 µm × τ 0.25–2.0 µm, the tables
-the tracer reads), at the centre of each of its 36 cells against a wave table built there with the same
+emulator's tracer (`WIDE_TRACER_SETTINGS`: 8 × 7 nodes over σ 0.015–0.15 µm × τ 0.25–2.0 µm, the tables
+the tracer reads), at the centre of each of its 42 cells against a wave table built there with the same
 options: the L1 above for `at` (what the tracer uses) and `build_at` at 0°, 20°, 40°, 60°, 70° and 80°;
 the directional albedo of `at` (hemisphere quadrature of the diffuse part + the coherent part) against the
 flat surface's reflectance (impedance boundary) + 3 SE of the direct table + 2·10⁻³ at 0–85°, and against

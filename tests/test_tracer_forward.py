@@ -104,6 +104,31 @@ def test_brdf_between_nodes(fn):
         TracerSettings(brdf_between_nodes="nearest")
 
 
+def test_crn_mean_over_reference_arrays(fn):
+    """`arrays=2`: the CRN L* is the mean of the two reference arrays' runs (seeds 0 and 1, half the rays each), its SE
+    the rays' SE of that mean; independent runs (mode "rsa") stay one array with all the rays; the setting enters the
+    cache key, bad counts are refused by name, and seeds of other runs may not reuse a reference array's seed."""
+    import dataclasses
+
+    from paintjax.inverse._tracer_forward import independent_runs
+
+    two = TracerLStar(dataclasses.replace(TINY, arrays=2))
+    half = TracerLStar(dataclasses.replace(TINY, rays=TINY.rays // 2))
+    L, se = two.evaluate(THETA[:1], return_se=True)
+    runs = [half.evaluate(THETA[:1], seed=s, return_se=True) for s in (0, 1)]
+    np.testing.assert_allclose(L, 0.5 * (runs[0][0] + runs[1][0]), rtol=1e-12)
+    np.testing.assert_allclose(se, 0.5 * np.hypot(runs[0][1], runs[1][1]), rtol=1e-12)
+    assert np.max(np.abs(runs[0][0] - runs[1][0])) > 0.05  # two arrays, two realisations
+    np.testing.assert_array_equal(two.evaluate(THETA[:1], seed=5, mode="rsa"), fn.evaluate(THETA[:1], seed=5, mode="rsa"))
+    assert two.settings.identity() != TINY.identity() and '"arrays"' not in TINY.identity()
+    assert two.settings.crn_seeds == (0, 1)
+    for bad in (0, 3, 65):
+        with pytest.raises(ValueError, match="arrays must be an integer in"):
+            dataclasses.replace(TINY, arrays=bad)
+    with pytest.raises(ValueError, match=r"none of the CRN seeds \[0, 1\]"):
+        independent_runs(two, THETA[:1], [1])
+
+
 def test_registered_emulator_builds_from_a_tiny_design_and_caches(tmp_path):
     assert "tracer-emulator" in FORWARDS
     # a plain GP: six design points cannot support the analytic mean's three extra inputs

@@ -56,7 +56,11 @@ estimated: from the source's coherent fraction R_coh/R = e^{−(2kσμ)²} over 
 or without a usable coherent part as the value for which the continued lobe best matches every
 node's in-plane data where they reach (`_roughness`; tables before version 11 used the lobe
 integrals, which do not see (kσ)² once (kσc)² ≫ 1). Which nodes were
-continued is stored (`continued`, with `lobe_coverage`).
+continued is stored (`continued`, with `lobe_coverage`). Since version 13 the continued lobes are a blend of the
+continuations from c_ref's node and from the next one, weighted by how far c_ref's coverage is above 99 %
+(w = (cov_ref − 0.99)/(cov_ref − cov_next)), so that a table does not jump where a node's coverage crosses 99 % as
+σ or τ change (in version 12 the grid's `build_at` table at σ 0.091, τ 0.42 µm and one built directly there continued
+from different nodes, coverage 0.990024 against 0.989980, and differed by 7.7 % L1 at 80°).
 
 **Reflectance.** a(μ) is solved at build time (symmetric Sinkhorn iteration) so that at every
 tabulated incidence ∫_disk f_inc dβ equals the source's incoherent reflectance; with the
@@ -141,7 +145,8 @@ from ._lobe_basis import (
 from ._radial_texture import incidence_lookup, log_radial_texture, lookup_index, radial_lookup
 
 #: Bumped when the table construction changes (part of the cache key).
-TABLE_VERSION = 12  # 11: the lobe fits' ridge is relative to each basis function; 12: the q_z continuation uses the known (kσ)²
+TABLE_VERSION = 13  # 11: the lobe fits' ridge is relative to each basis function; 12: the q_z continuation uses the known (kσ)²;
+#                     13: the continuation blends its two reference nodes (continuous where coverage crosses MIN_COVERAGE)
 
 
 def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = DEFAULT_NUM_WIDTHS, min_width: float = 0.0, sinkhorn_iterations: int = 300,
@@ -217,8 +222,19 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
         kernel = _hankel_pair(widths)
         if kroughness2 is None:
             kroughness2 = _roughness(mu_nodes, R_coh, R_inc, coef, widths, last, kernel, in_plane_reach(c_nodes))
-        for j in range(last + 1, J):
-            coef[j] = continue_lobe(coef[last], widths, kroughness2 * c_nodes[last] ** 2, kroughness2 * c_nodes[j] ** 2, kernel, min_width)
+
+        def continued_from(ref):  # every node beyond `ref` takes ref's lobe continued to its q_z
+            out = coef.copy()
+            for j in range(ref + 1, J):
+                out[j] = continue_lobe(coef[ref], widths, kroughness2 * c_nodes[ref] ** 2, kroughness2 * c_nodes[j] ** 2, kernel, min_width)
+            return out
+
+        # Blended with the continuation from the next node by how far `last` is above MIN_COVERAGE, so that the
+        # table is continuous where a node's coverage crosses it (σ or τ changing): w → 0 as coverage[last] → 99 %
+        # from above, and w → 1 on the other side of the switch (the next node just reaching 99 %).
+        w = (coverage[last] - MIN_COVERAGE) / max(coverage[last] - coverage[last + 1], 1e-300)
+        blended = last + 2 < J and 0.0 < w
+        coef = (1.0 - w) * continued_from(last) + w * continued_from(last + 1) if blended else continued_from(last)
         continued[last + 1:] = True
     # kernel of the symmetric normalisation: ∫_disk a(μ_o) L(ρ; μ̄) dβ at each tabulated incidence
     Kmat = np.einsum("jlmk,mk->jl", normalisation_tensor(mu_nodes, widths), coef)

@@ -344,11 +344,14 @@ def direct_tracer(emulator) -> TracerLStar:
 
 
 #: A box that holds what the published inputs read through their measurement models and what the L*
-#: prefer (`docs/input_measurement.md`), and the BRDF-table grid that spans it (7 × 7 nodes, ratio ≈ 1.4).
-WIDE_TRACER_BOX: dict[str, tuple[float, float]] = {"shape": (1.2, 12.0), "scale": (0.5, 5.0), "sigma": (0.02, 0.15), "tau": (0.25, 2.0)}
-#: Its tracer settings also trace MA98's −15° (a second pass with the same seed; the five standard angles unchanged).
-WIDE_TRACER_SETTINGS = TracerSettings(sigma_nodes=(0.02, 0.15, 7), tau_nodes=(0.25, 2.0, 7), extra_aspecular=(-15.0,))
-#: Its design is denser where the platelets are smooth (the lowest 40 % of log σ, 0.020–0.045 µm), where L* changes
+#: prefer (`docs/input_measurement.md`), and the BRDF-table grid that spans it (8 × 7 nodes, ratio ≈ 1.4).
+WIDE_TRACER_BOX: dict[str, tuple[float, float]] = {"shape": (1.2, 12.0), "scale": (0.5, 5.0), "sigma": (0.015, 0.15), "tau": (0.25, 2.0)}
+#: Its tracer settings also trace MA98's −15° (a second pass with the same seed; the five standard angles unchanged), and
+#: each evaluation is the mean over four reference arrays (16 384 rays each): where the tilt law is wide and the platelets
+#: smooth, arrays differ by up to 6–10 L* at 15° (`experiments/array_spread.py`), and an emulator of one array's CRN
+#: tracer followed that array (up to 18–20 L* from the mean of four independent arrays at posterior draws).
+WIDE_TRACER_SETTINGS = TracerSettings(sigma_nodes=(0.015, 0.15, 8), tau_nodes=(0.25, 2.0, 7), extra_aspecular=(-15.0,), arrays=4)
+#: Its design is denser where the platelets are smooth (the lowest 40 % of log σ, 0.015–0.038 µm), where L* changes
 #: fastest with σ (the coherent part, exp(−(2kσ cos θ)²), falls from 0.6 to 0.1 there): with the base design alone the
 #: leave-one-out error there was 4.9–8.6 L* RMS in the smoothest fifth against 1.0–1.8 in the roughest third.
 WIDE_REFINE, WIDE_N_REFINE = {"sigma": (0.0, 0.4)}, 48

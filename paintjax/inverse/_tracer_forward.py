@@ -91,8 +91,12 @@ class TracerSettings:
 
     Arguments:
         sample: reference sample whose non-tilt statistics (PVC, sizes, thicknesses, coat) are used.
-        rays: rays per evaluation (fixed, so common random numbers hold exactly).
-        seed: seed of the platelet array and of the rays (the CRN seed).
+        rays: rays per evaluation (fixed, so common random numbers hold exactly), shared equally by the arrays.
+        seed: seed of the platelet array and of the rays (the CRN seed; with several arrays the first of
+            `arrays` consecutive seeds).
+        arrays: reference arrays a CRN evaluation averages over (each with its own seed and rays, `rays / arrays`
+            of them): L* is the mean of the arrays' L*, so one atypical array moves it by 1/`arrays` as much,
+            at the same ray count (independent runs, mode "rsa", stay one array: a panel's realisation).
         tile_um: lateral period of the generated array [µm] (the CLI default is 752 µm; the
             tracer rotates the instrument per ray, so a smaller tile mostly costs array variance,
             which the seed-to-seed spread measures).
@@ -118,6 +122,7 @@ class TracerSettings:
     sample: str = "silver1"
     rays: int = 65536
     seed: int = 0
+    arrays: int = 1
     tile_um: float = 400.0
     primer_albedo: float = 0.3
     sigma_nodes: tuple[float, float, int] = (0.02, 0.09, 6)
@@ -132,6 +137,8 @@ class TracerSettings:
     def __post_init__(self):
         if int(self.rays) < 1:
             raise ValueError(f"rays must be a positive integer, got {self.rays!r}")
+        if not 1 <= int(self.arrays) <= MAX_CRN_ARRAYS or int(self.rays) % int(self.arrays):
+            raise ValueError(f"arrays must be an integer in [1, {MAX_CRN_ARRAYS}] that divides rays ({self.rays}), got {self.arrays!r}")
         if self.brdf_between_nodes not in ("build_at", "at"):
             raise ValueError(f"brdf_between_nodes must be 'build_at' or 'at', got {self.brdf_between_nodes!r}")
         if self.table_source not in ("wave", "kirchhoff"):
@@ -156,6 +163,11 @@ class TracerSettings:
 
         return tuple(sorted(STANDARD_ASPECULAR + self.extra_aspecular))
 
+    @property
+    def crn_seeds(self) -> tuple[int, ...]:
+        """Seeds of the reference arrays (and their rays) of a CRN evaluation."""
+        return tuple(range(int(self.seed), int(self.seed) + int(self.arrays)))
+
     def nodes(self, name: str) -> np.ndarray:
         lo, hi, n = getattr(self, f"{name}_nodes")
         return np.geomspace(lo, hi, int(n)) if int(n) > 1 else np.array([float(lo)])
@@ -169,8 +181,13 @@ class TracerSettings:
             del d["reverse_share"]
         if not d["extra_aspecular"]:  # the five standard angles alone, as before: same key
             del d["extra_aspecular"]
+        if d["arrays"] == 1:  # one reference array, as before the option existed: same key
+            del d["arrays"]
         return "TracerLStar" + json.dumps(d, sort_keys=True)
 
+
+#: Most reference arrays one CRN evaluation may average over (`TracerSettings.arrays`).
+MAX_CRN_ARRAYS = 64
 
 #: Tilt law (shape, scale [deg]) of the reference arrays that the CRN arrays are transported from
 #: (well aligned, so overlap removal and the film-fit redraws rarely act on it).
@@ -365,22 +382,29 @@ class TracerLStar:
                      options=TracerOptions(lanes=st.lanes, batches=st.batches, reverse_share=st.reverse_share))
 
     def evaluate(self, theta, *, seed: int | None = None, return_se: bool = False, mode: str = "crn"):
-        """L* (batch, m) at `angles` for θ (batch, 4); with `return_se` also the tracer's batch-means SE.
-        `mode` "crn" (default, smooth in θ) or "rsa" (fresh generator array per θ)."""
+        """L* (batch, m) at `angles` for θ (batch, 4); with `return_se` also the tracer's batch-means SE (of the rays; with
+        several arrays, of their mean). `mode` "crn" (default, smooth in θ: the mean over `settings.arrays` reference
+        arrays, seeds `seed`, `seed` + 1, …) or "rsa" (one fresh generator array per θ, seed `seed`, all the rays)."""
         from ..tracer._options import EnergyCreationError
 
         t = self.check(theta)
+        st = self.settings
+        first = st.seed if seed is None else int(seed)
+        # CRN: the mean over the settings' reference arrays, each with its share of the rays; "rsa": one fresh array
+        seeds = [first + k for k in range(int(st.arrays))] if mode == "crn" else [first]
+        rays = int(st.rays) // len(seeds)
         L = np.empty((t.shape[0], len(self.angles)))
         se = np.empty_like(L)
         for i, row in enumerate(t):
             t0 = time.perf_counter()
             for group, cols, places in self.passes():
                 try:
-                    r = self.trace_one(*row, seed=seed, mode=mode, aspecular=group)
+                    runs = [self.trace_one(*row, seed=s, rays=rays, mode=mode, aspecular=group) for s in seeds]
                 except EnergyCreationError as err:
                     raise EnergyCreationError(f"the platelet BRDF at sigma={row[2]:.4g}, tau={row[3]:.4g} µm: {err}; narrow the (sigma, "
                                               "tau) box") from None
-                L[i, cols], se[i, cols] = np.asarray(r.L_star)[places], np.asarray(r.L_star_se)[places]
+                L[i, cols] = np.mean([np.asarray(r.L_star)[places] for r in runs], axis=0)
+                se[i, cols] = np.sqrt(np.sum([np.asarray(r.L_star_se)[places] ** 2 for r in runs], axis=0)) / len(runs)
             dt = time.perf_counter() - t0
             self.evaluations += 1
             self.seconds += dt
@@ -412,8 +436,8 @@ def seed_spread(fn: TracerLStar, theta: Sequence[Sequence[float]], seeds: Sequen
 
     theta = np.atleast_2d(np.asarray(theta, float))
     seeds = [int(s) for s in seeds]
-    if len(seeds) < 2 or fn.settings.seed in seeds:
-        raise ValueError(f"seed_spread needs at least two seeds, all different from the CRN seed {fn.settings.seed}")
+    if len(seeds) < 2 or set(fn.settings.crn_seeds) & set(seeds):
+        raise ValueError(f"seed_spread needs at least two seeds, all different from the CRN seeds {list(fn.settings.crn_seeds)}")
     inputs = {"identity": fn.settings.identity(), "theta": theta, "seeds": seeds, "version": 2}
     if fn.angles != STANDARD_ASPECULAR:  # the five standard angles keep their key
         inputs["angles"] = list(fn.angles)
@@ -446,8 +470,9 @@ def independent_runs(fn: TracerLStar, theta: Sequence[Sequence[float]], seeds: S
 
     theta = np.atleast_2d(np.asarray(theta, float))
     seeds = [int(s) for s in seeds]
-    if len(seeds) != theta.shape[0] or len(set(seeds)) != len(seeds) or fn.settings.seed in seeds:
-        raise ValueError(f"independent_runs needs one distinct seed per row of theta ({theta.shape[0]}), none the CRN seed {fn.settings.seed}")
+    if len(seeds) != theta.shape[0] or len(set(seeds)) != len(seeds) or set(fn.settings.crn_seeds) & set(seeds):
+        raise ValueError(f"independent_runs needs one distinct seed per row of theta ({theta.shape[0]}), none of the CRN seeds "
+                         f"{list(fn.settings.crn_seeds)}")
     inputs = {"identity": fn.settings.identity(), "theta": theta, "seeds": seeds, "angles": list(fn.angles), "version": 1}
 
     def one(t, s):
@@ -498,7 +523,7 @@ def register() -> None:
     register_forward(
         "tracer-emulator-wide",
         wide_tracer_emulator,
-        "'tracer-emulator' over shape 1.2–12, scale 0.5–5°, σ 0.02–0.15 µm, τ 0.25–2 µm, also at −15° (shipped; "
+        "'tracer-emulator' over shape 1.2–12, scale 0.5–5°, σ 0.015–0.15 µm, τ 0.25–2 µm, also at −15°, four arrays per run (shipped; "
         "error 3.0–3.5 L* RMS per standard angle, 5.0 at −15°)",
         angles=ASPECULAR_45,
     )
