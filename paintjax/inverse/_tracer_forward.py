@@ -26,7 +26,7 @@ Monte Carlo estimate can be:
 * *Platelet BRDF.* σ and τ enter through a grid of platelet tables (`paintjax.brdf._grid.platelet_brdf_grid`,
   log σ × log τ, built once per process and cached table by table): by default a table is built at (σ, τ) from the
   nodes' in-plane lobes interpolated there (`BRDFTableGrid.build_at`, `TracerSettings.brdf_between_nodes`), the
-  closest to a table built directly (within 7.7 % L1 over the wide box's grid, against 12.7 % for the
+  closest to a table built directly (within 3.9 % L1 over the wide box's grid, against 12.7 % for the
   differentiable `at`, which moved L* by up to 3 at the steep corner); its own lobe fit at every point leaves
   steps of ≈ 0.05 L* under 1 % changes, below the tracer's noise. Default `table_source="wave"`: the
   hybrid model's wave-solver tables (30 tables, ≈ 1 min on 2 cores, cached). `"kirchhoff"` builds
@@ -112,10 +112,10 @@ class TracerSettings:
             traced in a second pass with the same seed (see the module docstring).
         brdf_between_nodes: how the platelet BRDF at (σ, τ) is made from the grid's tables: "build_at"
             (default: a table built from the in-plane lobes interpolated there, `BRDFTableGrid.build_at`;
-            over the wide box's grid within 0.6–7.7 % L1 of a table built directly, 4 of 36 cells above 3 %, 3 of them beyond
-            the spread of two direct tables from other profiles)
+            over the wide box's grid within 0.4–3.9 % L1 of a table built directly, 3 of 42 cells above 3 %, 2 of them beyond
+            the spread of two direct tables from other profiles; platelet tables version 13)
             or "at" (the differentiable interpolation of the tables, `BRDFTableGrid.at`; up to 12.7 %,
-            13 cells above 3 %, moving L* by up to 3 at the steep corner: `python
+            14 cells above 3 %, moving L* by up to 3 at the steep corner: `python
             experiments/grid_interpolation.py --inverse-grid`).
     """
 
