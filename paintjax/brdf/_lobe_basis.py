@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import nnls
+from scipy.special import erf
 
 from ._analytic import disk_quadrature
 
@@ -213,6 +214,43 @@ def _roughness(mu, R_coh, R_inc, coef, widths, ref: int, kernel, reach):
         P = P / np.maximum(P[:, :1], 1e-300)
         cost.append(np.sum(np.mean(np.abs(P - fitted), -1)))
     return float(grid[int(np.argmin(cost))])
+
+
+def continue_uncovered(coef, widths, mu_nodes, R_coh, R_inc, kroughness2: float | None, min_width: float = 0.0):
+    """Nodes whose in-plane data do not reach their lobe (both directions near grazing, small c) take the lobe of the
+    last node covered to `MIN_COVERAGE`, continued to their q_z (generalised Harvey–Shack, `continue_lobe`), blended
+    with the continuation from the next node by how far that node is above the threshold, so that a table is
+    continuous where a node's coverage crosses it as σ or τ change: w = (cov_ref − 0.99)/(cov_ref − cov_next) → 0 as the
+    reference's coverage falls to 99 %, → 1 on the other side of the switch. `kroughness2`: the surface's (kσ)² in
+    the medium, None: estimated from the lobes (`_roughness`).
+
+    Returns:
+        (coef with the continued rows replaced, each node's coverage, which nodes were continued).
+    """
+    J = coef.shape[0]
+    c_nodes = 2.0 * mu_nodes
+    mass = coef * np.pi * widths**2  # ∫ L d²ρ per basis term
+    coverage = np.sum(mass * erf(in_plane_reach(c_nodes)[:, None] / widths), -1) / np.maximum(mass.sum(-1), 1e-300)
+    last = int(np.argmax(coverage))  # near normal incidence a node pools a window of μ̄ (see _hat)
+    while last + 1 < J and coverage[last + 1] >= MIN_COVERAGE:
+        last += 1
+    continued = np.zeros(J, bool)
+    if not (coverage[last] >= MIN_COVERAGE and last < J - 1 and c_nodes[0] - c_nodes[last] >= MIN_C_SPAN):
+        return coef, coverage, continued
+    kernel = _hankel_pair(widths)
+    if kroughness2 is None:
+        kroughness2 = _roughness(mu_nodes, R_coh, R_inc, coef, widths, last, kernel, in_plane_reach(c_nodes))
+
+    def continued_from(ref):  # every node beyond `ref` takes ref's lobe continued to its q_z
+        out = coef.copy()
+        for j in range(ref + 1, J):
+            out[j] = continue_lobe(coef[ref], widths, kroughness2 * c_nodes[ref] ** 2, kroughness2 * c_nodes[j] ** 2, kernel, min_width)
+        return out
+
+    w = (coverage[last] - MIN_COVERAGE) / max(coverage[last] - coverage[last + 1], 1e-300)
+    blended = last + 2 < J and 0.0 < w
+    continued[last + 1:] = True
+    return ((1.0 - w) * continued_from(last) + w * continued_from(last + 1) if blended else continued_from(last)), coverage, continued
 
 
 def _interp_index(mu, mu_nodes_desc, xp=jnp):

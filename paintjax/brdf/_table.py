@@ -102,7 +102,6 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
-from scipy.special import erf
 
 from .._cache import cached_arrays
 from ..wave._checks import MAX_SIGMA_UM, MAX_TAU_UM, check_energy
@@ -127,18 +126,13 @@ from ._in_plane import (
 from ._lobe_basis import (
     COS_MIN,
     DEFAULT_NUM_WIDTHS,
-    MIN_C_SPAN,
-    MIN_COVERAGE,
-    _hankel_pair,
     _hat,
     _interp_index,
     _interp_rows,
     _lobe_widths,
-    _roughness,
-    continue_lobe,
+    continue_uncovered,
     fit_radial_lobe,
     geometric_factor,
-    in_plane_reach,
     normalisation_tensor,
     symmetric_scale,
 )
@@ -209,33 +203,7 @@ def _table_arrays_from_lobes(lobes, *, method: str = "abel", num_widths: int = D
         if not np.any(prop[j] > 0):  # no lobe: a proposal of the narrowest allowed width
             prop[j, min(int(np.searchsorted(widths, min_width)), widths.size - 1)] = 1.0
         prop[j] = prop[j] / np.sum(prop[j] * np.pi * widths**2)
-    # nodes whose in-plane data do not reach their lobe (both directions near grazing, small c): the
-    # lobe of the last fully covered node continued to their q_z (generalised Harvey–Shack)
-    c_nodes = 2.0 * mu_nodes
-    mass = coef * np.pi * widths**2  # ∫ L d²ρ per basis term
-    coverage = np.sum(mass * erf(in_plane_reach(c_nodes)[:, None] / widths), -1) / np.maximum(mass.sum(-1), 1e-300)
-    last = int(np.argmax(coverage))  # near normal incidence a node pools a window of μ̄ (see _hat)
-    while last + 1 < J and coverage[last + 1] >= MIN_COVERAGE:
-        last += 1
-    continued = np.zeros(J, bool)
-    if coverage[last] >= MIN_COVERAGE and last < J - 1 and c_nodes[0] - c_nodes[last] >= MIN_C_SPAN:
-        kernel = _hankel_pair(widths)
-        if kroughness2 is None:
-            kroughness2 = _roughness(mu_nodes, R_coh, R_inc, coef, widths, last, kernel, in_plane_reach(c_nodes))
-
-        def continued_from(ref):  # every node beyond `ref` takes ref's lobe continued to its q_z
-            out = coef.copy()
-            for j in range(ref + 1, J):
-                out[j] = continue_lobe(coef[ref], widths, kroughness2 * c_nodes[ref] ** 2, kroughness2 * c_nodes[j] ** 2, kernel, min_width)
-            return out
-
-        # Blended with the continuation from the next node by how far `last` is above MIN_COVERAGE, so that the
-        # table is continuous where a node's coverage crosses it (σ or τ changing): w → 0 as coverage[last] → 99 %
-        # from above, and w → 1 on the other side of the switch (the next node just reaching 99 %).
-        w = (coverage[last] - MIN_COVERAGE) / max(coverage[last] - coverage[last + 1], 1e-300)
-        blended = last + 2 < J and 0.0 < w
-        coef = (1.0 - w) * continued_from(last) + w * continued_from(last + 1) if blended else continued_from(last)
-        continued[last + 1:] = True
+    coef, coverage, continued = continue_uncovered(coef, widths, mu_nodes, R_coh, R_inc, kroughness2, min_width)
     # kernel of the symmetric normalisation: ∫_disk a(μ_o) L(ρ; μ̄) dβ at each tabulated incidence
     Kmat = np.einsum("jlmk,mk->jl", normalisation_tensor(mu_nodes, widths), coef)
     wi, wo, wt = disk_quadrature(mu_nodes, xp=np)
