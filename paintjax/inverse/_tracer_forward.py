@@ -11,7 +11,9 @@ Monte Carlo estimate can be:
   follow the θ law exactly), is lowered where the box would not fit in the film, and its height
   keeps its relative place in the allowed range. That is a smooth function of θ. (Generating a
   fresh array per θ is not: random sequential addition re-orders and re-places platelets, and a
-  0.5 % step in shape moved L*15 by several units in a test.) Boxes are not de-overlapped again
+  0.5 % step in shape moved L*15 by several units in a test.) With `TracerSettings.arrays` > 1 an evaluation
+  is the mean over that many reference arrays (seeds seed, seed + 1, …, the rays shared equally), so that
+  one atypical array counts 1/arrays as much (the wide emulator uses four). Boxes are not de-overlapped again
   after the transport; the bias this causes (brighter at 45–110° where the tilt law is wide) is measured
   against independent runs and removed by the emulators (`paintjax.inverse._error_model.RunToRun`).
 * *Rays.* A fixed ray count and seed (the tracer's random numbers are a hash of (seed, ray id,
