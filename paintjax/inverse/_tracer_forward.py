@@ -362,21 +362,27 @@ class TracerLStar:
                              thickness=t, tile=tuple(ref.tile), basecoat_thickness=h_b)
 
     # -- evaluation ----------------------------------------------------------------------------
-    def trace_one(self, shape: float, scale: float, sigma: float, tau: float, *, seed: int | None = None, rays: int | None = None,
-                  mode: str = "crn", aspecular=None, brdf=None):
-        """One tracer run at θ (array by `mode`, see `array`) with detectors at `aspecular` (default the
-        standard five) and the platelet BRDF `brdf` (default the grid's `at(σ, τ)`, what the forward map
-        uses; another table at the same (σ, τ) for comparisons); returns the `TraceResult`."""
-        from ..instrument._geometry import STANDARD_ASPECULAR, ma98_geometry
+    def scene(self, shape: float, scale: float, seed: int, mode: str = "crn"):
+        """(platelet array, its uniform grid) at tilt law (shape, scale) for `seed` (see `array`)."""
         from ..microstructure._grid import build_grid
+
+        array = self.array(shape, scale, seed, mode)
+        return array, build_grid(array)
+
+    def trace_one(self, shape: float, scale: float, sigma: float, tau: float, *, seed: int | None = None, rays: int | None = None,
+                  mode: str = "crn", aspecular=None, brdf=None, scene=None):
+        """One tracer run at θ (array by `mode`, see `array`) with detectors at `aspecular` (default the
+        standard five) and the platelet BRDF `brdf` (default the grid's table at (σ, τ), `brdf_at`, what the
+        forward map uses; another table at the same (σ, τ) for comparisons); `scene` is this θ's and seed's
+        (array, grid) when already built (`scene`); returns the `TraceResult`."""
+        from ..instrument._geometry import STANDARD_ASPECULAR, ma98_geometry
         from ..tracer._options import TracerOptions
         from ..tracer._trace import trace
 
         st = self.settings
         seed = st.seed if seed is None else int(seed)
         s = self.sample
-        array = self.array(shape, scale, seed, mode)
-        grid = build_grid(array)
+        array, grid = self.scene(shape, scale, seed, mode) if scene is None else scene
         brdf = self.brdf_at(sigma, tau) if brdf is None else brdf
         geometry = ma98_geometry(45.0, STANDARD_ASPECULAR if aspecular is None else aspecular, detector_aperture_deg=0.0)
         return trace(array, geometry, brdf, grid=grid, n=s.binder_index, clearcoat_thickness=s.clearcoat_thickness,
@@ -399,9 +405,10 @@ class TracerLStar:
         se = np.empty_like(L)
         for i, row in enumerate(t):
             t0 = time.perf_counter()
+            scenes = {s: self.scene(row[0], row[1], s, mode) for s in seeds}  # built once, shared by the passes
             for group, cols, places in self.passes():
                 try:
-                    runs = [self.trace_one(*row, seed=s, rays=rays, mode=mode, aspecular=group) for s in seeds]
+                    runs = [self.trace_one(*row, seed=s, rays=rays, mode=mode, aspecular=group, scene=scenes[s]) for s in seeds]
                 except EnergyCreationError as err:
                     raise EnergyCreationError(f"the platelet BRDF at sigma={row[2]:.4g}, tau={row[3]:.4g} µm: {err}; narrow the (sigma, "
                                               "tau) box") from None
