@@ -71,7 +71,7 @@ def main():
         ax.set_xlim(-80, 80)
     axes[0].set_ylabel("σ [1/rad]")
     axes[0].legend(fontsize=7)
-    fig.suptitle(f"PEC (TE) Gaussian surface σ = λ, τ = 2λ in the binder: enhanced backscattering", fontsize=10)
+    fig.suptitle("PEC (TE) Gaussian surface σ = λ, τ = 2λ in the binder: enhanced backscattering", fontsize=10)
     atomic_savefig(fig, OUT / "backscatter.png")
     print(summary)
 
