@@ -11,6 +11,8 @@ below 1e-4 per comparison. Scenes are small Boolean-model platelet arrays
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from _tracer_scenes import N_COAT, SILVER1_TILT, K, LambertPlateletBRDF, coat_transmittance, empty_array
@@ -24,7 +26,7 @@ from paintjax import (
     ma98_geometry,
 )
 from paintjax.microstructure._grid import build_grid
-from paintjax.tracer._options import TracerOptions
+from paintjax.tracer._options import TracerOptions, detector_reverse_shares
 from paintjax.tracer._trace import trace
 
 OPT = TracerOptions(lanes=1024, steps_per_call=16, batches=32)
@@ -214,8 +216,9 @@ def test_multiple_importance_sampling(lambert_scene):
     assert np.mean(ratio) < 0.9  # MIS off gives exactly 1 (same seed, same numbers)
 
 
-@pytest.mark.parametrize("single", [False, True], ids=["all orders", "single scatter"])
-def test_bidirectional_mis(lambert_scene, single):
+@pytest.mark.parametrize("single, share", [(False, 0.5), (True, 0.5), (False, (0.0, 0.0, 0.0, 0.5, 1.0))],
+                         ids=["all orders", "single scatter", "per-detector shares"])
+def test_bidirectional_mis(lambert_scene, single, share):
     """Point detectors: forward NEE weighted against the reverse tracer (balance heuristic over the
     two path densities) plus the reverse passes estimates the same reflectance factor as the forward
     tracer alone.
@@ -226,7 +229,9 @@ def test_bidirectional_mis(lambert_scene, single):
     estimators precise. Dropping the detector's 1/|z_D| from the forward weight alone, or the running
     ratio of the earlier vertices, moved the estimates by 3–9 SE here. The bidirectional run has
     120 000 rays: at 60 000 its relative SE at 110° (all orders) had a median of 4.1–4.3 % over six
-    seeds (2.4–12 %: rare heavy paths), at the 5 % the check's teeth require.
+    seeds (2.4–12 %: rare heavy paths), at the 5 % the check's teeth require. Per-detector shares: no
+    reverse rays for 15–45° (their NEE weight is 1), 0.5 and 1 reverse rays per forward ray for 75° and 110°
+    (the reverse pool deals its rays 1 : 2 between them, and both passes weight by those shares).
     """
     from paintjax.brdf._analytic import BeckmannBRDF
 
@@ -235,12 +240,30 @@ def test_bidirectional_mis(lambert_scene, single):
     geo = ma98_geometry(45.0)
     kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, single_scatter=single)
     fwd = trace(arr, geo, brdf, rays=30_000, seed=13, options=OPT_FWD, **kw)  # own seed: independent of `bid`'s forward pass
-    bid = trace(arr, geo, brdf, rays=120_000, seed=12, options=OPT, **kw)  # 1 + 5 × 0.5 rays per forward ray
-    assert 120_000 <= bid.rays < 121_000
+    bid = trace(arr, geo, brdf, rays=120_000, seed=12, options=dataclasses.replace(OPT, reverse_share=share), **kw)
+    assert 120_000 <= bid.rays < 121_000  # 1 + Σ shares rays per forward ray, in all
     z = (bid.reflectance_factor - fwd.reflectance_factor) / np.hypot(bid.reflectance_factor_se, fwd.reflectance_factor_se)
     print("(bidirectional − forward)/SE", np.round(z, 2), "relative SE", np.round(bid.reflectance_factor_se / bid.reflectance_factor, 4))
     assert np.all(np.abs(z) < K)
     assert np.all(bid.reflectance_factor_se < (0.01 if single else 0.05) * bid.reflectance_factor)  # the check has teeth
+
+
+def test_detector_reverse_shares():
+    """A number applies to every detector (the reverse pool deals its rays 0, 1, …, m − 1 in turn); a tuple
+    gives each detector its own share, rounded to a ratio of small integers that the wheel of sources repeats."""
+    shares, wheel = detector_reverse_shares(0.5, 5)
+    np.testing.assert_array_equal(shares, np.full(5, 0.5))
+    np.testing.assert_array_equal(wheel, np.arange(5))
+    shares, wheel = detector_reverse_shares((0.0, 0.0, 0.0, 0.5, 1.0), 5)
+    np.testing.assert_allclose(shares, [0, 0, 0, 0.5, 1.0], rtol=1e-12)
+    np.testing.assert_array_equal(wheel, [3, 4, 4])
+    shares, wheel = detector_reverse_shares((0.3, 0.7), 2)  # 7 : 16 after rounding, the total kept
+    np.testing.assert_allclose(shares, [7 / 23, 16 / 23], rtol=1e-12)
+    assert np.sum(wheel == 0) == 7 and np.sum(wheel == 1) == 16
+    shares, wheel = detector_reverse_shares(0.0, 5)
+    assert not shares.any()
+    with pytest.raises(ValueError, match="reverse_share must be a number or a tuple of 5 numbers"):
+        detector_reverse_shares((0.5, 0.5), 5)
 
 
 @pytest.mark.parametrize("waviness", [0.0, 8.0])
@@ -295,8 +318,12 @@ def test_deterministic_and_validated(empty_scene):
         trace(arr, geo, LambertPlateletBRDF(0.5), grid=grid, primer_albedo=1.5)
     with pytest.raises(ValueError, match="detector_aperture_deg"):
         trace(arr, geo, MirrorBRDF(), grid=grid)
-    with pytest.raises(ValueError, match=r"reverse_share must lie in \[0, 16\]"):
+    with pytest.raises(ValueError, match=r"reverse_share must be a number in \[0, 16\] or a tuple of them"):
         TracerOptions(reverse_share=-1.0)
+    with pytest.raises(ValueError, match=r"reverse_share must be a number in \[0, 16\] or a tuple of them"):
+        TracerOptions(reverse_share=(0.5, 17.0))
+    with pytest.raises(ValueError, match=r"reverse_share must be a number or a tuple of 5 numbers"):
+        trace(arr, geo, LambertPlateletBRDF(0.5), grid=grid, options=dataclasses.replace(OPT, reverse_share=(0.5, 0.5)))
     with pytest.raises(ValueError, match="rays"):
         trace(arr, geo, LambertPlateletBRDF(0.5), grid=grid, rays=0)
     with pytest.raises(ValueError, match=r"grid was built for a \(40.0, 40.0\) µm tile"):  # another array's grid

@@ -63,7 +63,10 @@ class TracerOptions(eqx.Module):
             point detectors, flat coat, BRDF without a delta part): per detector a reverse pass
             (reciprocity: the detector is the source, the source the only detector) traces this
             many rays per forward ray, and the NEE of both passes is weighted by the balance
-            heuristic over their path densities. 0: the forward tracer alone. It relies on
+            heuristic over their path densities. 0: the forward tracer alone. A tuple gives each
+            detector its own share (0: none for that detector; positive shares are rounded to
+            ratios of small integers, `detector_reverse_shares`), e.g. reverse rays only for the
+            detectors far from specular, whose light the forward pass finds least well. It relies on
             reciprocity: of the platelet BRDF (all of paintjax's are) and of the scene, which
             overlapping boxes break (a ray starting inside a box passes through it, one arriving
             from outside does not), so arrays should be overlap-free (`array_statistics`).
@@ -88,7 +91,7 @@ class TracerOptions(eqx.Module):
     shadow_leg_cells: int = eqx.field(static=True, default=4)
     edges: str = eqx.field(static=True, default="scatter")
     mis: bool = eqx.field(static=True, default=True)
-    reverse_share: float = eqx.field(static=True, default=0.5)
+    reverse_share: float | tuple[float, ...] = eqx.field(static=True, default=0.5)
 
     def __check_init__(self):
         for name, v, lo in (("lanes", self.lanes, 1), ("steps_per_call", self.steps_per_call, 1),
@@ -104,7 +107,43 @@ class TracerOptions(eqx.Module):
             raise ValueError(f"shadow_buffer must lie in (0, 1], got {self.shadow_buffer!r}")
         if self.edges not in ("scatter", "absorb"):
             raise ValueError(f"edges must be 'scatter' or 'absorb', got {self.edges!r}")
-        if not (0.0 <= self.reverse_share <= 16.0):
-            raise ValueError(f"reverse_share must lie in [0, 16], got {self.reverse_share!r}")
+        shares = self.reverse_share if isinstance(self.reverse_share, tuple) else (self.reverse_share,)
+        try:
+            ok = len(shares) > 0 and all(0.0 <= float(v) <= 16.0 for v in shares)
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise ValueError(f"reverse_share must be a number in [0, 16] or a tuple of them (one per detector), got {self.reverse_share!r}")
         if not (0.0 <= self.roulette_weight < 1.0):
             raise ValueError(f"roulette_weight must lie in [0, 1), got {self.roulette_weight!r}")
+
+
+#: Longest cycle of sources the reverse pool deals its rays over (`detector_reverse_shares`).
+MAX_SOURCE_WHEEL = 64
+
+
+def detector_reverse_shares(reverse_share, m: int):
+    """Reverse rays per forward ray for each of `m` detectors, and the cycle of detector indices the
+    reverse pool deals its rays over (ray r comes from detector wheel[r mod len(wheel)]).
+
+    A number applies to every detector; a tuple must have one entry per detector. Positive shares are
+    rounded to ratios of small integers (the wheel is at most `MAX_SOURCE_WHEEL` long) and the returned
+    shares are the rounded ones, which the MIS weights of both passes use; equal shares give the wheel
+    0, 1, …, m − 1.
+    """
+    import numpy as np
+
+    s = np.asarray(reverse_share, dtype=float)
+    if s.ndim == 0:
+        s = np.full(m, float(s))
+    if s.shape != (m,):
+        raise ValueError(f"reverse_share must be a number or a tuple of {m} numbers (one per detector), got {reverse_share!r}")
+    on = np.flatnonzero(s > 0)
+    if on.size == 0:
+        return np.zeros(m), np.zeros(1, np.int64)
+    total = float(s[on].sum())
+    k = np.maximum(1, np.round(s[on] / s[on].max() * (MAX_SOURCE_WHEEL // on.size)).astype(np.int64))
+    k = k // np.gcd.reduce(k)
+    out = np.zeros(m)
+    out[on] = total * k / k.sum()
+    return out, np.repeat(on, k)

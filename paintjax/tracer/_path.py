@@ -51,8 +51,8 @@ def _new_ray_uniforms(sc: _Scene) -> int:
 
 
 def _source(sc: _Scene, rid):
-    """Source index of ray `rid` (rays are dealt to the P sources in turn)."""
-    return (rid % sc.illum_air.shape[0]).astype(jnp.int32)
+    """Source index of ray `rid` (rays are dealt to the sources in turn, along the scene's wheel)."""
+    return sc.wheel[(rid % sc.wheel.shape[0]).astype(jnp.int32)]
 
 
 def _new_ray(sc: _Scene, u, dtype, randomize_azimuth: bool = True, src=0):
@@ -118,7 +118,7 @@ def _reverse_weight(sc: _Scene, src, hit, first, lg, wi_loc, wo_loc_j, w_in):
     """
     _, rev_j = _projected_pdfs(sc, hit, wi_loc, wo_loc_j)
     cos_in = jnp.maximum(wi_loc[2], 1e-12)
-    log_rho = (sc.log_reverse_share + _log(sc.illum_in_z[src]) - _log(w_in[:, 2]) + _log(wo_loc_j[:, 2])
+    log_rho = (sc.log_reverse_share[src] + _log(sc.illum_in_z[src]) - _log(w_in[:, 2]) + _log(wo_loc_j[:, 2])
                + jnp.where(first, -_log(cos_in), lg + _log(rev_j)))
     return jax.nn.sigmoid(-jnp.clip(log_rho, -80.0, 80.0))
 

@@ -18,7 +18,7 @@ from ..instrument._geometry import Geometry, refract_into_coat
 from ..instrument._single_scatter import _orthonormal_basis
 from ..microstructure._grid import check_grid_matches
 from ..optics._interface import slope_sd
-from ._options import _BIG
+from ._options import _BIG, detector_reverse_shares
 
 # ----------------------------------------------------------------------------------------------
 # Scene
@@ -36,14 +36,15 @@ class _Scene(eqx.Module):
     n: Float[Array, ""]
     albedo: Float[Array, ""]
     eps: Float[Array, ""]
-    illum_air: Float[Array, "P 3"]  # P sources; ray r comes from source r mod P (the reverse pool: one per detector)
+    illum_air: Float[Array, "P 3"]  # P sources; ray r comes from source wheel[r mod len(wheel)] (the reverse pool: one per detector)
     illum_cos_alpha: Float[Array, ""]
     det_air: Float[Array, "m 3"]
     det_cos_alpha: Float[Array, ""]
     brdf: AbstractPlateletBRDF
     slope_sd: Float[Array, ""]  # per-component slope sd of a wavy clearcoat (0 = flat)
-    log_reverse_share: Float[Array, "m"]  # bidirectional MIS: log(reverse rays / forward rays) per detector (−inf: off)
+    log_reverse_share: Float[Array, "P m"]  # bidirectional MIS: log(reverse rays / forward rays) per source and detector (−inf: off)
     illum_in_z: Float[Array, " P"]  # |z| of the refracted source directions (projected-area factor of the beam)
+    wheel: Int[Array, " W"]  # the cycle of sources the rays are dealt over (one entry per share)
     max_cells: int = eqx.field(static=True)  # budget of a ray's step
     shadow_cells: int = eqx.field(static=True)  # cells a shadow ray crosses at most to the top within the flat coat's critical angle
     wavy: bool = eqx.field(static=True, default=False)  # draw facet normals at the clearcoat surface
@@ -249,8 +250,10 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
     """Pack an array, its grid, the BRDF and the instrument into the tracer's device scene.
 
     `reverse`: the reverse pool of bidirectional MIS, by reciprocity: one source per detector (at
-    the detector's direction) and one detector at the illumination direction; `reverse_share`
-    is then the reverse rays per forward ray and detector, as for the forward scene.
+    the detector's direction) and one detector at the illumination direction. `reverse_share`: the
+    reverse rays per forward ray, a number for every detector or one per detector (rounded as
+    `detector_reverse_shares` rounds them), for both scenes; the reverse pool deals its rays to the
+    detectors with a share, in proportion to it.
 
     Platelet and cell tables are padded to bucketed sizes and the grid dimensions are traced
     values, so arrays of similar size (e.g. the two reference samples) share one compilation.
@@ -273,9 +276,11 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
     illum_alpha, det_alpha = geometry.illumination_aperture_deg, geometry.detector_aperture_deg
     if reverse:
         sources, detectors, illum_alpha, det_alpha = detectors, sources, det_alpha, illum_alpha
-    share = 0.0 if reverse_share is None else float(reverse_share)
-    # log(rays of the other pass / this pass's rays), per detector (forward) or per source (reverse)
-    log_share = -1e30 if share <= 0 else float(np.log(1.0 / share if reverse else share))
+    shares, wheel = detector_reverse_shares(0.0 if reverse_share is None else reverse_share, detectors.shape[0] if not reverse else sources.shape[0])
+    # log(rays of the other pass / this pass's rays), per detector (forward: one source) or per source (reverse: one detector)
+    log_share = np.where(shares > 0, np.log(np.where(shares > 0, shares, 1.0)), -1e30)
+    log_share = (-log_share)[:, None] if reverse else log_share[None, :]
+    wheel = wheel if reverse else np.zeros(1, np.int64)
     src_in = np.asarray(refract_into_coat(jnp.asarray(sources), float(n)))
     return _Scene(
         cols=_pack_platelets(array, dtype, n_pad),
@@ -295,11 +300,12 @@ def build_scene(array, geometry: Geometry, brdf: AbstractPlateletBRDF, grid, *, 
         det_cos_alpha=arr(np.cos(np.deg2rad(det_alpha))),
         brdf=_in_dtype(brdf, dtype),
         slope_sd=arr(slope_sd(waviness_deg)),
-        log_reverse_share=jnp.full((detectors.shape[0],), log_share, dtype),
+        log_reverse_share=arr(np.clip(log_share, -1e30, 1e30)),
         illum_in_z=arr(np.abs(src_in[:, 2])),
+        wheel=jnp.asarray(wheel, jnp.int32),
         max_cells=int(min_cells),
         shadow_cells=_shadow_cell_bound(shape, cell, h_b, float(n)),
         wavy=waviness_deg > 0.0,
         mis=bool(mis) and det_alpha > 0.0 and not waviness_deg > 0.0,
-        bidir=share > 0,
+        bidir=bool(np.any(shares > 0)),
     )

@@ -104,7 +104,7 @@ from ..instrument._lightness import reflectance_factor_to_lightness
 from ..instrument._single_scatter import check_coat_index, check_platelet_medium
 from ..microstructure._grid import build_grid
 from ..optics._interface import check_waviness
-from ._options import _MAX_GROWTH, LEDGER_KEYS, MAX_CREATED_ENERGY, EnergyCreationError, TracerOptions
+from ._options import _MAX_GROWTH, LEDGER_KEYS, MAX_CREATED_ENERGY, EnergyCreationError, TracerOptions, detector_reverse_shares
 from ._path import _has_delta, _new_ray, _new_ray_uniforms, _ray_hash, _shadows, _source, _step_one, _uniforms
 from ._result import TraceResult, resolved_detectors
 from ._scene import _Scene, build_scene
@@ -282,7 +282,7 @@ def lightness_with_se(R, se):
 def _bidirectional_applies(opt: TracerOptions, geometry: Geometry, brdf, waviness_deg: float) -> bool:
     """Bidirectional MIS needs delta directions at both ends (collimated beam, point detectors), a
     flat coat and a BRDF without a delta part; elsewhere the tracer runs forward alone."""
-    return (opt.reverse_share > 0 and geometry.detector_aperture_deg == 0 and geometry.illumination_aperture_deg == 0
+    return (bool(np.any(np.asarray(opt.reverse_share, dtype=float) > 0)) and geometry.detector_aperture_deg == 0 and geometry.illumination_aperture_deg == 0
             and not waviness_deg > 0 and not _has_delta(brdf))
 
 
@@ -317,7 +317,7 @@ def trace(
         clearcoat_thickness: h_c in µm (≥ 0).
         primer_albedo: Lambertian primer albedo ρ in [0, 1].
         waviness_deg: RMS slope angle of a wavy clearcoat surface in [0, 15]° (0: flat; see `paintjax.optics._interface`).
-        rays: number of rays, over all passes (bidirectional: 1 + m·`reverse_share` rays per
+        rays: number of rays, over all passes (bidirectional: 1 + Σ_j `reverse_share`_j rays per
             forward ray; each pass rounded up to a multiple of the device count, so a few more
             than asked: `TraceResult.rays` is the count traced).
         seed: random seed; the result depends on it and on `options`, not on the schedule.
@@ -361,14 +361,15 @@ def trace(
         raise ValueError("grid.overflow is set: some cell exceeded its capacity; rebuild the grid with a larger capacity")
     cdt = jnp.float64 if (opt.float64 and jax.config.jax_enable_x64) else jnp.float32
     m = geometry.num_detectors
-    share = opt.reverse_share if _bidirectional_applies(opt, geometry, brdf, waviness_deg) else 0.0
+    # reverse rays per forward ray and detector (rounded, `detector_reverse_shares`; 0: the forward tracer alone)
+    shares = detector_reverse_shares(opt.reverse_share, m)[0] if _bidirectional_applies(opt, geometry, brdf, waviness_deg) else np.zeros(m)
     common = dict(n=n, clearcoat_thickness=clearcoat_thickness, primer_albedo=primer_albedo, waviness_deg=waviness_deg,
                   dtype=cdt, min_cells=opt.cells_per_step, mis=opt.mis)
     # the forward pass (all detectors) and, bidirectionally, the reverse pool: every detector becomes a
-    # source whose one detector is the illumination (reciprocity), `share` rays per forward ray each
-    passes = [(build_scene(array, geometry, brdf, grid, reverse_share=share, **common), 1.0)]
-    if share > 0:
-        passes.append((build_scene(array, geometry, brdf, grid, reverse_share=share, reverse=True, **common), share * m))
+    # source whose one detector is the illumination (reciprocity), its share of rays per forward ray
+    passes = [(build_scene(array, geometry, brdf, grid, reverse_share=shares, **common), 1.0)]
+    if shares.any():
+        passes.append((build_scene(array, geometry, brdf, grid, reverse_share=shares, reverse=True, **common), float(shares.sum())))
     devices = jax.local_devices()
     ndev = len(devices)
     mesh = Mesh(np.array(devices), ("rays",))
@@ -397,7 +398,7 @@ def trace(
         parts = []
         for item in live:
             sc, key, state, frac = item
-            target = max(int(np.ceil(frac * n_local)), -(-sc.illum_air.shape[0] // ndev))  # every source gets rays
+            target = max(int(np.ceil(frac * n_local)), -(-sc.wheel.shape[0] // ndev))  # every source with a share gets rays
             nl = put(jnp.asarray(target, idt))
             while True:
                 state = run(sc, key, state, nl, single)
