@@ -8,7 +8,7 @@ rays-per-second ratio (both forward-only). Goals: time-to-precision ≤ 60 s on 
 on one H100).
 
 Time-to-precision runs with the tracer's default bidirectional MIS (`--reverse-share S`, reverse
-rays per forward ray and detector) and, in the same run as the straightforward alternative, with
+rays per forward ray and detector, or one share per detector: `--reverse-share 0,0,0,0.5,1`; default `aspecular`, `REVERSE_SHARE_BY_ASPECULAR`) and, in the same run as the straightforward alternative, with
 the forward tracer alone (`--forward-max-rays 0` skips it); the ratio is reported. The far-angle
 variance is heavy-tailed, so `--ttp-seeds 2,3,4` repeats both for several seeds (ray streams);
 the headline numbers are the first seed's, the per-seed lists and medians come with them.
@@ -49,6 +49,14 @@ def say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
+def _shares(text: str):
+    """--reverse-share: "aspecular" (the default), one number for every detector, or one per detector separated by commas."""
+    if text == "aspecular":
+        return text
+    values = tuple(float(v) for v in text.split(","))
+    return values[0] if len(values) == 1 else values
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rays", type=int, default=65536, help="rays of the throughput run")
@@ -58,7 +66,7 @@ def main() -> int:
     ap.add_argument("--coherent-width-factor", type=float, default=1.0)
     ap.add_argument("--detector-aperture", type=float, default=0.0, help="detector cone half-angle [deg] (default 0: point detectors)")
     ap.add_argument("--no-mis", action="store_true", help="NEE alone at finite apertures (default: MIS with BRDF-sampled exits)")
-    ap.add_argument("--reverse-share", type=float, default=TracerOptions().reverse_share,
+    ap.add_argument("--reverse-share", type=_shares, default=TracerOptions().reverse_share,
                     help="bidirectional MIS: reverse rays per forward ray and detector (0: forward tracer alone)")
     ap.add_argument("--forward-max-rays", type=int, default=4_000_000,
                     help="ray ceiling of the forward-alone time-to-precision run (0 skips it)")
@@ -103,7 +111,7 @@ def main() -> int:
             runs.append(trace(array, geo, brdf, rays=args.rays, seed=seed, target_se_lstar=args.target_se, max_rays=args.max_rays,
                                 options=opt, **kw))
             say(f"seed {seed}: time to SE <= {args.target_se} {runs[-1].seconds:.2f} s, {runs[-1].rays} rays")
-            if args.forward_max_rays > 0 and args.reverse_share > 0:
+            if args.forward_max_rays > 0 and args.reverse_share != 0.0:
                 runs_fwd.append(trace(array, geo, brdf, rays=args.rays, seed=seed, target_se_lstar=args.target_se,
                                         max_rays=args.forward_max_rays, options=opt_fwd, **kw))
                 say(f"seed {seed}: forward alone {runs_fwd[-1].seconds:.2f} s, {runs_fwd[-1].rays} rays")

@@ -257,11 +257,18 @@ def test_detector_reverse_shares():
     shares, wheel = detector_reverse_shares((0.0, 0.0, 0.0, 0.5, 1.0), 5)
     np.testing.assert_allclose(shares, [0, 0, 0, 0.5, 1.0], rtol=1e-12)
     np.testing.assert_array_equal(wheel, [3, 4, 4])
-    shares, wheel = detector_reverse_shares((0.3, 0.7), 2)  # 7 : 16 after rounding, the total kept
-    np.testing.assert_allclose(shares, [7 / 23, 16 / 23], rtol=1e-12)
-    assert np.sum(wheel == 0) == 7 and np.sum(wheel == 1) == 16
+    shares, wheel = detector_reverse_shares((0.3, 0.7), 2)  # 3 : 7
+    np.testing.assert_allclose(shares, [0.3, 0.7], rtol=1e-12)
+    assert np.sum(wheel == 0) == 3 and np.sum(wheel == 1) == 7
+    shares, wheel = detector_reverse_shares((0.2, 0.7001), 2)  # rounded to 2 : 7, the total kept
+    np.testing.assert_allclose(shares, [0.9001 * 2 / 9, 0.9001 * 7 / 9], rtol=1e-12)
+    assert wheel.size == 9
     shares, wheel = detector_reverse_shares(0.0, 5)
     assert not shares.any()
+    # the default, by aspecular angle: none near specular, 0.5 from 60°, 1 from 90°, 0.5 out of the plane
+    shares, wheel = detector_reverse_shares("aspecular", 7, [-15.0, 15.0, 25.0, 45.0, 75.0, 110.0, np.nan])
+    np.testing.assert_allclose(shares, [0, 0, 0, 0, 0.5, 1.0, 0.5], rtol=1e-12)
+    np.testing.assert_array_equal(np.sort(wheel), [4, 5, 5, 6])
     with pytest.raises(ValueError, match="reverse_share must be a number or a tuple of 5 numbers"):
         detector_reverse_shares((0.5, 0.5), 5)
 
@@ -318,9 +325,9 @@ def test_deterministic_and_validated(empty_scene):
         trace(arr, geo, LambertPlateletBRDF(0.5), grid=grid, primer_albedo=1.5)
     with pytest.raises(ValueError, match="detector_aperture_deg"):
         trace(arr, geo, MirrorBRDF(), grid=grid)
-    with pytest.raises(ValueError, match=r"reverse_share must be a number in \[0, 16\] or a tuple of them"):
+    with pytest.raises(ValueError, match=r"reverse_share must be 'aspecular', a number in \[0, 16\] or a tuple of them"):
         TracerOptions(reverse_share=-1.0)
-    with pytest.raises(ValueError, match=r"reverse_share must be a number in \[0, 16\] or a tuple of them"):
+    with pytest.raises(ValueError, match=r"reverse_share must be 'aspecular', a number in \[0, 16\] or a tuple of them"):
         TracerOptions(reverse_share=(0.5, 17.0))
     with pytest.raises(ValueError, match=r"reverse_share must be a number or a tuple of 5 numbers"):
         trace(arr, geo, LambertPlateletBRDF(0.5), grid=grid, options=dataclasses.replace(OPT, reverse_share=(0.5, 0.5)))

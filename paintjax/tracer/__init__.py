@@ -6,7 +6,16 @@ optionally combined over wavelengths as the instrument does; a deterministic sin
 reference of one tile to check it against; and a per-stage time profile of the wavefront step.
 """
 
-from ._options import DEFAULT_LANES, LEDGER_KEYS, MAX_CREATED_ENERGY, EnergyCreationError, TracerOptions, default_lanes
+from ._options import (
+    DEFAULT_LANES,
+    LEDGER_KEYS,
+    MAX_CREATED_ENERGY,
+    REVERSE_SHARE_BY_ASPECULAR,
+    EnergyCreationError,
+    TracerOptions,
+    default_lanes,
+    detector_reverse_shares,
+)
 from ._plain import plain_trace_counts, plain_trace_seconds
 from ._profile import PROFILE_PARENTS, PROFILE_STAGES, profile_wavefront_step
 from ._result import TraceResult
@@ -22,6 +31,8 @@ __all__ = [
     "MAX_CREATED_ENERGY",
     "EnergyCreationError",
     "TracerOptions",
+    "REVERSE_SHARE_BY_ASPECULAR",
+    "detector_reverse_shares",
     "plain_trace_seconds",
     "plain_trace_counts",
     "PROFILE_STAGES",

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+from fractions import Fraction
+
 import equinox as eqx
 
 #: Keys of the energy ledger, in order.
@@ -63,10 +66,14 @@ class TracerOptions(eqx.Module):
             point detectors, flat coat, BRDF without a delta part): per detector a reverse pass
             (reciprocity: the detector is the source, the source the only detector) traces this
             many rays per forward ray, and the NEE of both passes is weighted by the balance
-            heuristic over their path densities. 0: the forward tracer alone. A tuple gives each
-            detector its own share (0: none for that detector; positive shares are rounded to
-            ratios of small integers, `detector_reverse_shares`), e.g. reverse rays only for the
-            detectors far from specular, whose light the forward pass finds least well. It relies on
+            heuristic over their path densities. 0: the forward tracer alone; a number: the same
+            share for every detector; a tuple: one per detector (0: none for it; positive shares
+            are rounded to ratios of small integers, `detector_reverse_shares`); "aspecular"
+            (default): by each detector's aspecular angle, `REVERSE_SHARE_BY_ASPECULAR` — none
+            near specular, where the light is mostly the beam scattered once, which forward NEE
+            finds, and more the farther out, where multiply scattered light reaches the detector
+            through narrow lobes that the reverse pass samples. Any shares estimate the same
+            expectation; they change the variance only. It relies on
             reciprocity: of the platelet BRDF (all of paintjax's are) and of the scene, which
             overlapping boxes break (a ray starting inside a box passes through it, one arriving
             from outside does not), so arrays should be overlap-free (`array_statistics`).
@@ -91,7 +98,7 @@ class TracerOptions(eqx.Module):
     shadow_leg_cells: int = eqx.field(static=True, default=4)
     edges: str = eqx.field(static=True, default="scatter")
     mis: bool = eqx.field(static=True, default=True)
-    reverse_share: float | tuple[float, ...] = eqx.field(static=True, default=0.5)
+    reverse_share: float | tuple[float, ...] | str = eqx.field(static=True, default="aspecular")
 
     def __check_init__(self):
         for name, v, lo in (("lanes", self.lanes, 1), ("steps_per_call", self.steps_per_call, 1),
@@ -109,11 +116,12 @@ class TracerOptions(eqx.Module):
             raise ValueError(f"edges must be 'scatter' or 'absorb', got {self.edges!r}")
         shares = self.reverse_share if isinstance(self.reverse_share, tuple) else (self.reverse_share,)
         try:
-            ok = len(shares) > 0 and all(0.0 <= float(v) <= 16.0 for v in shares)
+            ok = self.reverse_share == "aspecular" or (len(shares) > 0 and all(0.0 <= float(v) <= 16.0 for v in shares))
         except (TypeError, ValueError):
             ok = False
         if not ok:
-            raise ValueError(f"reverse_share must be a number in [0, 16] or a tuple of them (one per detector), got {self.reverse_share!r}")
+            raise ValueError(f"reverse_share must be 'aspecular', a number in [0, 16] or a tuple of them (one per detector), "
+                             f"got {self.reverse_share!r}")
         if not (0.0 <= self.roulette_weight < 1.0):
             raise ValueError(f"roulette_weight must lie in [0, 1), got {self.roulette_weight!r}")
 
@@ -122,17 +130,34 @@ class TracerOptions(eqx.Module):
 MAX_SOURCE_WHEEL = 64
 
 
-def detector_reverse_shares(reverse_share, m: int):
+#: `TracerOptions.reverse_share = "aspecular"`: (|aspecular angle| from which [deg], reverse rays per forward ray)
+#: in increasing order; none below the first, `OUT_OF_PLANE_REVERSE_SHARE` for detectors outside the illumination
+#: plane. Chosen on Silver #1's five MA98 angles: with (0, 0, 0, 0.5, 1) the time to L* SE ≤ 0.3 at all five
+#: fell 1.7× against 0.5 for every detector (BENCHMARKS.md); the variance, not the expectation, depends on it.
+REVERSE_SHARE_BY_ASPECULAR = ((60.0, 0.5), (90.0, 1.0))
+OUT_OF_PLANE_REVERSE_SHARE = 0.5
+
+
+def detector_reverse_shares(reverse_share, m: int, aspecular_deg=None):
     """Reverse rays per forward ray for each of `m` detectors, and the cycle of detector indices the
     reverse pool deals its rays over (ray r comes from detector wheel[r mod len(wheel)]).
 
-    A number applies to every detector; a tuple must have one entry per detector. Positive shares are
-    rounded to ratios of small integers (the wheel is at most `MAX_SOURCE_WHEEL` long) and the returned
-    shares are the rounded ones, which the MIS weights of both passes use; equal shares give the wheel
-    0, 1, …, m − 1.
+    A number applies to every detector; a tuple must have one entry per detector; "aspecular" follows
+    `REVERSE_SHARE_BY_ASPECULAR` at the detectors' aspecular angles `aspecular_deg` (m,) [deg]. Positive
+    shares are rounded to ratios of small integers (relative to the largest, fractions of denominators up to
+    `MAX_SOURCE_WHEEL`, the wheel at most that long unless there are more detectors) and the returned shares
+    are the rounded ones, which the MIS weights of both passes use; equal shares give
+    the wheel 0, 1, …, m − 1.
     """
     import numpy as np
 
+    if isinstance(reverse_share, str):
+        gamma = np.abs(np.asarray(aspecular_deg, dtype=float)).reshape(-1)
+        if reverse_share != "aspecular" or gamma.shape != (m,):
+            raise ValueError(f"reverse_share 'aspecular' needs the {m} detectors' aspecular angles, got {reverse_share!r}, {aspecular_deg!r}")
+        reverse_share = np.where(np.isnan(gamma), OUT_OF_PLANE_REVERSE_SHARE, 0.0)
+        for start, share in REVERSE_SHARE_BY_ASPECULAR:
+            reverse_share = np.where(gamma >= start, share, reverse_share)
     s = np.asarray(reverse_share, dtype=float)
     if s.ndim == 0:
         s = np.full(m, float(s))
@@ -142,7 +167,15 @@ def detector_reverse_shares(reverse_share, m: int):
     if on.size == 0:
         return np.zeros(m), np.zeros(1, np.int64)
     total = float(s[on].sum())
-    k = np.maximum(1, np.round(s[on] / s[on].max() * (MAX_SOURCE_WHEEL // on.size)).astype(np.int64))
+    # each share relative to the largest as a fraction of a small denominator, the wheel their common multiple
+    for denominator in range(MAX_SOURCE_WHEEL, 0, -1):
+        ratios = [Fraction(float(v)).limit_denominator(denominator) for v in s[on] / s[on].max()]
+        common = math.lcm(*(r.denominator for r in ratios))
+        if common > MAX_SOURCE_WHEEL:
+            continue
+        k = np.array([max(1, int(r * common)) for r in ratios], dtype=np.int64)
+        if k.sum() <= MAX_SOURCE_WHEEL:
+            break
     k = k // np.gcd.reduce(k)
     out = np.zeros(m)
     out[on] = total * k / k.sum()

@@ -36,7 +36,7 @@ from ._options import TracerOptions
 from ._path import _key_from, _new_ray, _new_ray_uniforms, _ray_hash, _shadow_leg, _shadows, _source, _step_one, _uniforms
 from ._plain import _step_kinds
 from ._scene import _Scene, build_scene
-from ._trace import _bidirectional_applies, _initial_state, _runner, _seed_state
+from ._trace import _initial_state, _reverse_shares, _runner, _seed_state
 
 #: The stages of `profile_wavefront_step`, in the order of its table (a stage, then its parts), with their labels.
 PROFILE_STAGES = {
@@ -218,7 +218,7 @@ def profile_wavefront_step(
     check_platelet_medium(brdf, n)
     opt = dataclasses.replace(options or TracerOptions(), lanes=lanes, batches=lanes)
     cdt = jnp.float64 if (opt.float64 and jax.config.jax_enable_x64) else jnp.float32
-    share = opt.reverse_share if _bidirectional_applies(opt, geometry, brdf, waviness_deg) else 0.0
+    share = _reverse_shares(opt, geometry, brdf, waviness_deg)
     sc = build_scene(array, geometry, brdf, build_grid(array) if grid is None else grid, n=n, clearcoat_thickness=clearcoat_thickness,
                      primer_albedo=primer_albedo, waviness_deg=waviness_deg, dtype=cdt, min_cells=opt.cells_per_step, mis=opt.mis,
                      reverse_share=share)

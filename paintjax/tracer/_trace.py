@@ -54,15 +54,15 @@ Estimators (reflectance factor R = π L / E, brief §3).
   by the balance heuristic, so narrow lobes are scored by whichever strategy finds them; the
   histogram column stays the plain histogram. Point detectors: NEE alone.
 * Bidirectional MIS (point detectors, collimated beam, flat coat, `TracerOptions.reverse_share`,
-  default 0.5): forward NEE sees a narrow platelet lobe (the coherent diffraction lobe) lit by
+  by default reverse rays only for the detectors far from specular, `REVERSE_SHARE_BY_ASPECULAR`): forward NEE sees a narrow platelet lobe (the coherent diffraction lobe) lit by
   diffuse light (primer, rough lobes) only in rare large spikes; traced from the detector's side
-  the same path samples the lobe and closes at the diffuse vertex. Each detector j gets a reverse
+  the same path samples the lobe and closes at the diffuse vertex. Each detector j with a share c_j > 0 gets a reverse
   pass (source at ω_j, one detector at the source: the paint BRDF is reciprocal) and both passes
   weight their NEE by the balance heuristic. For a path x_1 … x_k the ratio of the reverse to the
   forward path density is ρ = (cos_k,j |z_L|)/(cos_1,in |z_j|) · Π_{i≥2} q̃_rev,i / Π_{i<k} q̃_fwd,i
   (q̃ = sampling density per projected solid angle; the beams are uniform over the tile, so their
   projected-area densities give the cosines and the geometric terms cancel); each ray carries the
-  running log-ratio, the forward weight is 1/(1 + cρ) (c = reverse / forward rays) and the reverse
+  running log-ratio, the forward weight is 1/(1 + c_j ρ) (c_j = reverse / forward rays) and the reverse
   pass computes the same for 1/ρ, so the weights sum to one path by path, whatever the densities.
   Paths with a narrow lobe at both ends stay spiky either way.
 * Standard errors by batch means over groups of lanes (batch b of every pass summed); L* errors by
@@ -279,11 +279,15 @@ def lightness_with_se(R, se):
     return L, np.abs(dL) * np.asarray(se)
 
 
-def _bidirectional_applies(opt: TracerOptions, geometry: Geometry, brdf, waviness_deg: float) -> bool:
-    """Bidirectional MIS needs delta directions at both ends (collimated beam, point detectors), a
-    flat coat and a BRDF without a delta part; elsewhere the tracer runs forward alone."""
-    return (bool(np.any(np.asarray(opt.reverse_share, dtype=float) > 0)) and geometry.detector_aperture_deg == 0 and geometry.illumination_aperture_deg == 0
-            and not waviness_deg > 0 and not _has_delta(brdf))
+def _reverse_shares(opt: TracerOptions, geometry: Geometry, brdf, waviness_deg: float) -> np.ndarray:
+    """Reverse rays per forward ray and detector (rounded, `detector_reverse_shares`). Bidirectional MIS needs
+    delta directions at both ends (collimated beam, point detectors), a flat coat and a BRDF without a delta
+    part; elsewhere the shares are 0 and the tracer runs forward alone."""
+    m = geometry.num_detectors
+    if (geometry.detector_aperture_deg == 0 and geometry.illumination_aperture_deg == 0 and not waviness_deg > 0
+            and not _has_delta(brdf)):
+        return detector_reverse_shares(opt.reverse_share, m, np.asarray(geometry.aspecular_deg, dtype=float))[0]
+    return np.zeros(m)
 
 
 def trace(
@@ -361,8 +365,7 @@ def trace(
         raise ValueError("grid.overflow is set: some cell exceeded its capacity; rebuild the grid with a larger capacity")
     cdt = jnp.float64 if (opt.float64 and jax.config.jax_enable_x64) else jnp.float32
     m = geometry.num_detectors
-    # reverse rays per forward ray and detector (rounded, `detector_reverse_shares`; 0: the forward tracer alone)
-    shares = detector_reverse_shares(opt.reverse_share, m)[0] if _bidirectional_applies(opt, geometry, brdf, waviness_deg) else np.zeros(m)
+    shares = _reverse_shares(opt, geometry, brdf, waviness_deg)  # all 0: the forward tracer alone
     common = dict(n=n, clearcoat_thickness=clearcoat_thickness, primer_albedo=primer_albedo, waviness_deg=waviness_deg,
                   dtype=cdt, min_cells=opt.cells_per_step, mis=opt.mis)
     # the forward pass (all detectors) and, bidirectionally, the reverse pool: every detector becomes a
