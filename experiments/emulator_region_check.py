@@ -26,7 +26,7 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
-from paintjax._io import atomic_write_json  # noqa: E402
+from paintjax import atomic_write_json  # noqa: E402
 from paintjax.inverse import WIDE_TRACER_BOX, direct_tracer, make_forward  # noqa: E402
 from paintjax.microstructure import PlateletFitError  # noqa: E402
 
