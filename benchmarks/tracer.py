@@ -67,7 +67,8 @@ def main() -> int:
     ap.add_argument("--detector-aperture", type=float, default=0.0, help="detector cone half-angle [deg] (default 0: point detectors)")
     ap.add_argument("--no-mis", action="store_true", help="NEE alone at finite apertures (default: MIS with BRDF-sampled exits)")
     ap.add_argument("--reverse-share", type=_shares, default=TracerOptions().reverse_share,
-                    help="bidirectional MIS: reverse rays per forward ray and detector (0: forward tracer alone)")
+                    help="bidirectional MIS: reverse rays per forward ray, 'aspecular' (default: by each detector's aspecular "
+                         "angle), one number for every detector (0: forward tracer alone) or one per detector, comma-separated")
     ap.add_argument("--forward-max-rays", type=int, default=4_000_000,
                     help="ray ceiling of the forward-alone time-to-precision run (0 skips it)")
     ap.add_argument("--ttp-seeds", default="2", help="comma-separated seeds of the time-to-precision runs")

@@ -231,7 +231,9 @@ def test_bidirectional_mis(lambert_scene, single, share):
     120 000 rays: at 60 000 its relative SE at 110° (all orders) had a median of 4.1–4.3 % over six
     seeds (2.4–12 %: rare heavy paths), at the 5 % the check's teeth require. Per-detector shares: no
     reverse rays for 15–45° (their NEE weight is 1), 0.5 and 1 reverse rays per forward ray for 75° and 110°
-    (the reverse pool deals its rays 1 : 2 between them, and both passes weight by those shares).
+    (the reverse pool deals its rays 1 : 2 between them, and both passes weight by those shares). What makes it
+    unbiased is that both passes use the same share per detector (each column is normalised by its own rays, so
+    the dealing changes only the variance): reverse weights from the mean share instead put 75° 4 SE off.
     """
     from paintjax.brdf._analytic import BeckmannBRDF
 
