@@ -216,9 +216,27 @@ def test_multiple_importance_sampling(lambert_scene):
     assert np.mean(ratio) < 0.9  # MIS off gives exactly 1 (same seed, same numbers)
 
 
+@pytest.fixture(scope="module")
+def beckmann_forward(lambert_scene):
+    """The forward tracer alone on rough Beckmann platelets (σ 0.1, τ 0.6 µm), 30 000 rays, seed 13 (independent of
+    the bidirectional runs' forward passes), single scattering or all orders: the reference of the bidirectional tests."""
+    from paintjax.brdf._analytic import BeckmannBRDF
+
+    arr, grid = lambert_scene
+    done = {}
+
+    def run(single):
+        if single not in done:
+            done[single] = trace(arr, ma98_geometry(45.0), BeckmannBRDF(0.1, 0.6, n_medium=N_COAT), grid=grid, n=N_COAT,
+                                 primer_albedo=0.5, single_scatter=single, rays=30_000, seed=13, options=OPT_FWD)
+        return done[single]
+
+    return run
+
+
 @pytest.mark.parametrize("single, share", [(False, 0.5), (True, 0.5), (False, (0.0, 0.0, 0.0, 0.5, 1.0))],
                          ids=["all orders", "single scatter", "per-detector shares"])
-def test_bidirectional_mis(lambert_scene, single, share):
+def test_bidirectional_mis(lambert_scene, beckmann_forward, single, share):
     """Point detectors: forward NEE weighted against the reverse tracer (balance heuristic over the
     two path densities) plus the reverse passes estimates the same reflectance factor as the forward
     tracer alone.
@@ -241,13 +259,14 @@ def test_bidirectional_mis(lambert_scene, single, share):
     brdf = BeckmannBRDF(0.1, 0.6, n_medium=N_COAT)
     geo = ma98_geometry(45.0)
     kw = dict(grid=grid, n=N_COAT, primer_albedo=0.5, single_scatter=single)
-    fwd = trace(arr, geo, brdf, rays=30_000, seed=13, options=OPT_FWD, **kw)  # own seed: independent of `bid`'s forward pass
+    fwd = beckmann_forward(single)
     bid = trace(arr, geo, brdf, rays=120_000, seed=12, options=dataclasses.replace(OPT, reverse_share=share), **kw)
     assert 120_000 <= bid.rays < 121_000  # 1 + Σ shares rays per forward ray, in all
     z = (bid.reflectance_factor - fwd.reflectance_factor) / np.hypot(bid.reflectance_factor_se, fwd.reflectance_factor_se)
     print("(bidirectional − forward)/SE", np.round(z, 2), "relative SE", np.round(bid.reflectance_factor_se / bid.reflectance_factor, 4))
     assert np.all(np.abs(z) < K)
     assert np.all(bid.reflectance_factor_se < (0.01 if single else 0.05) * bid.reflectance_factor)  # the check has teeth
+
 
 
 def test_detector_reverse_shares():
@@ -534,3 +553,4 @@ def test_wave_table_lookup_agrees_with_the_basis_sums(lambert_scene):
     assert np.all(np.isfinite(fast.L_star)) and np.all(se > 0)
     assert np.all(np.abs(fast.L_star - ref.L_star) < 0.05 * se)
     assert np.all(np.abs(fast.L_star - ref2.L_star) < 3.0 * np.hypot(fast.L_star_se, ref2.L_star_se))
+
