@@ -29,7 +29,15 @@ from ._profilometer import (
 )
 from ._registry import make_forward, register_forward
 from ._tilt_measurement import apparent_tilt_deg, fit_gamma, gamma_fit_moments, gamma_fit_sd, platelets_for_sd, tilt_fit_distribution
-from ._tracer_emulator import WIDE_TRACER_BOX, WIDE_TRACER_SETTINGS, direct_tracer, tracer_emulator, tracer_info, wide_tracer_emulator
+from ._tracer_emulator import (
+    WIDE_TRACER_BOX,
+    WIDE_TRACER_SETTINGS,
+    direct_tracer,
+    independent_check_design,
+    tracer_emulator,
+    tracer_info,
+    wide_tracer_emulator,
+)
 from ._tracer_forward import TRACER_BOX, TRACER_PARAMETERS, TracerLStar, TracerSettings, independent_runs
 from ._verdict import DISAGREE_P, panel_posteriors
 
@@ -89,6 +97,7 @@ __all__ = [
     "TracerLStar",
     "TracerSettings",
     "direct_tracer",
+    "independent_check_design",
     "independent_runs",
     "tracer_emulator",
     "tracer_info",

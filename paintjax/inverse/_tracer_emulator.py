@@ -143,19 +143,37 @@ def tracer_emulator(
     return out
 
 
-def _independent_check(em, model, fn, spec, n: int, seed: int, cache_dir) -> dict:
-    """The emulator against `n` independent tracer runs at Latin hypercubes of its box, and the run-to-run terms
-    (`fit_run_to_run`: the CRN tracer's bias, the spread, the angles' correlation) that its cross-validated error law
-    needs to hold those misses."""
+def independent_check_design(spec, n: int = INDEPENDENT_RUNS, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, list[int]]]:
+    """Where a tracer emulator is judged against independent tracer runs: Latin hypercubes of `INDEPENDENT_BATCH`
+    points of its box (each batch cached on its own by `independent_runs`).
+
+    Arguments:
+        spec: the emulator's `ParameterSpec` (`Emulator.spec`).
+        n, seed: the runs and the emulator's design seed (`tracer_emulator`'s `independent` and `seed`).
+
+    Returns:
+        One (z, θ, seeds) per batch: unit-cube points (k, p), parameters (k, p) and the runs' seeds
+        (`INDEPENDENT_SEED0` + i).
+    """
     from ._emulator import _lhs
 
-    z, theta, runs = [], [], []
-    for b in range(-(-n // INDEPENDENT_BATCH)):  # Latin hypercubes of INDEPENDENT_BATCH runs, each cached on its own
+    out = []
+    for b in range(-(-n // INDEPENDENT_BATCH)):
         k = min(INDEPENDENT_BATCH, n - b * INDEPENDENT_BATCH)
-        z.append(_lhs(k, len(spec), seed + 7 + b))
-        theta.append(np.asarray(spec.from_unit(z[-1])))
-        seeds = [INDEPENDENT_SEED0 + b * INDEPENDENT_BATCH + i for i in range(k)]
-        runs.append(independent_runs(fn, np.asarray(model.full(theta[-1])), seeds, cache_dir=cache_dir)["L"])
+        z = _lhs(k, len(spec), seed + 7 + b)
+        out.append((z, np.asarray(spec.from_unit(z)), [INDEPENDENT_SEED0 + b * INDEPENDENT_BATCH + i for i in range(k)]))
+    return out
+
+
+def _independent_check(em, model, fn, spec, n: int, seed: int, cache_dir) -> dict:
+    """The emulator against `n` independent tracer runs at Latin hypercubes of its box (`independent_check_design`),
+    and the run-to-run terms (`fit_run_to_run`: the CRN tracer's bias, the spread, the angles' correlation) that its
+    cross-validated error law needs to hold those misses."""
+    z, theta, runs = [], [], []
+    for zb, tb, seeds in independent_check_design(spec, n, seed):
+        z.append(zb)
+        theta.append(tb)
+        runs.append(independent_runs(fn, np.asarray(model.full(tb)), seeds, cache_dir=cache_dir)["L"])
     z, theta, runs = np.concatenate(z), np.concatenate(theta), np.concatenate(runs)
     made = np.all(np.isfinite(runs), axis=1)  # a θ whose platelets cannot fit the film has no array
     z, theta, runs = z[made], theta[made], runs[made]

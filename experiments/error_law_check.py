@@ -1,0 +1,145 @@
+"""Experiment: does the emulator's error law hold the misses of a calibration study's panels at their truths?
+
+A calibration study (`experiments/coverage.py --forward tracer-emulator-wide`) stores, per synthetic panel, the
+truth θ and the panel's data (one independent tracer run, fresh array and rays, plus 0.3 L* of measurement noise).
+The likelihood says the residual r = data − emulator(θ) at the truth is a draw of the emulator's error law (the
+cross-validated Student-t, the run-to-run spread and the fitted bias's variance) plus the noise. This checks that
+claim panel by panel, independently of any posterior: the tail probability p of r under the law, ranked by the
+law's own log density (p = P(log p(R) ≤ log p(r)), R drawn from the law at θ, Monte Carlo). If the law is right,
+p is uniform: 5 % of panels below 0.05. Too many small p where posteriors missed says the law is too narrow there;
+uniform p says the misses come from elsewhere (the posterior's geometry, the prior's edge). Reports p per panel,
+the fractions below 0.05 and 0.32 overall and among the panels whose 95 % interval of a parameter missed, and
+Spearman's ρ of p with each truth. `--independent` asks the same of the independent tracer runs the run-to-run terms
+were fitted to (in sample: what the law was made to hold).
+
+Writes <study>/error_law_check.json and error_law_check.png, or with --independent
+experiments/output/error_law_check/independent.json (atomic).
+
+Run: python experiments/error_law_check.py [--study experiments/output/coverage_tracer_wide_seed2030] [--draws 4000]
+     python experiments/error_law_check.py --independent
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np  # noqa: E402
+from scipy import stats  # noqa: E402
+
+from paintjax import atomic_write_json  # noqa: E402
+from paintjax.inverse import WIDE_TRACER_SETTINGS, TracerLStar, independent_check_design, independent_runs, make_forward  # noqa: E402
+
+STUDY = Path(__file__).resolve().parent / "output" / "coverage_tracer_wide_seed2030"
+OUT_INDEPENDENT = Path(__file__).resolve().parent / "output" / "error_law_check" / "independent.json"
+NOISE_SD = 0.3  # the study's measurement noise [L*]
+NAMES = ("shape", "scale", "sigma", "tau")
+
+
+def tail_probabilities(em, theta, data, noise_var, draws, rng):
+    """Residuals data − em(θ) and their tail probabilities under the emulator's error law plus the noise (ranked by
+    the law's log density; Monte Carlo with `draws` draws per row)."""
+    r = data - np.asarray(em(theta))
+    var = np.full_like(r, noise_var)
+    logp = np.asarray(em.residual_log_density(r, var, theta))
+    p = np.empty(len(r))
+    for i in range(len(r)):
+        R = em.sample_residual(rng, np.broadcast_to(var[i], (draws, r.shape[1])), np.broadcast_to(theta[i], (draws, theta.shape[1])))
+        lp = np.asarray(em.residual_log_density(R, np.broadcast_to(var[i], R.shape), np.broadcast_to(theta[i], (draws, theta.shape[1]))))
+        p[i] = (np.sum(lp <= logp[i]) + 1) / (draws + 1)
+    return r, p
+
+
+def check_independent(draws: int, seed: int) -> int:
+    """The tail probabilities of the emulator's misses of its own independent check runs (no added noise)."""
+    em = make_forward("tracer-emulator-wide", NAMES)
+    fn = TracerLStar(WIDE_TRACER_SETTINGS)  # the runs are cached at all its angles
+    theta, data = [], []
+    for _, t, seeds in independent_check_design(em.spec):
+        theta.append(t)
+        data.append(independent_runs(fn, t, seeds)["L"][:, [fn.angles.index(x) for x in em.angles]])
+    theta, data = np.concatenate(theta), np.concatenate(data)
+    made = np.all(np.isfinite(data), axis=1)  # a θ whose platelets cannot fit the film has no run
+    theta, data = theta[made], data[made]
+    _, p = tail_probabilities(em, theta, data, 0.0, draws, np.random.default_rng(seed))
+    out = {"runs": int(len(p)), "draws": draws, "p": p.tolist(),
+           "fraction_below": {"0.05": float(np.mean(p < 0.05)), "0.32": float(np.mean(p < 0.32))},
+           "binomial_95_range_below_0.05": [int(x) for x in stats.binom(len(p), 0.05).interval(0.95)],
+           "binomial_95_range_below_0.32": [int(x) for x in stats.binom(len(p), 0.32).interval(0.95)],
+           "uniform_ks_p": float(stats.kstest(p, "uniform").pvalue)}
+    OUT_INDEPENDENT.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(OUT_INDEPENDENT, out)
+    print(f"{len(p)} independent runs (in sample): p < 0.05 in {np.sum(p < 0.05)} (binomial 95 % range "
+          f"{out['binomial_95_range_below_0.05']}), p < 0.32 in {np.sum(p < 0.32)} (range {out['binomial_95_range_below_0.32']}); "
+          f"KS against uniform p = {out['uniform_ks_p']:.3f}")
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--study", default=str(STUDY), help="folder of a tracer-emulator-wide calibration study (its summary.json)")
+    ap.add_argument("--draws", type=int, default=4000, help="Monte Carlo draws of the law per panel")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--independent", action="store_true", help="check the independent runs the run-to-run terms were fitted to")
+    a = ap.parse_args(argv)
+    if a.draws < 100:
+        raise SystemExit(f"--draws must be at least 100, got {a.draws}")
+    if a.independent:
+        return check_independent(a.draws, a.seed)
+    study = Path(a.study)
+    summary = json.loads((study / "summary.json").read_text())
+    if summary.get("forward") != "tracer-emulator-wide" or tuple(summary.get("free", ())) != NAMES:
+        raise SystemExit(f"{study}: not a tracer-emulator-wide study over {NAMES}")
+    rows = summary["rows"]
+    em = make_forward("tracer-emulator-wide", NAMES)
+    theta = np.array([[r["truth"][n] for n in NAMES] for r in rows])
+    data = np.array([r["L_star"] for r in rows])
+    r, p = tail_probabilities(em, theta, data, NOISE_SD**2, a.draws, np.random.default_rng(a.seed))
+    missed = {n: np.array([not r_["inside"][f"{n}@0.95"] for r_ in rows]) for n in NAMES}
+    out = {"study": str(study.name), "panels": len(rows), "draws": a.draws, "noise_sd": NOISE_SD,
+           "p": p.tolist(), "residual": r.tolist(), "angles": [float(x) for x in em.angles],
+           "fraction_below": {"0.05": float(np.mean(p < 0.05)), "0.32": float(np.mean(p < 0.32))},
+           "binomial_95_range_below_0.05": [int(x) for x in stats.binom(len(rows), 0.05).interval(0.95)],
+           "binomial_95_range_below_0.32": [int(x) for x in stats.binom(len(rows), 0.32).interval(0.95)],
+           "uniform_ks_p": float(stats.kstest(p, "uniform").pvalue),
+           "missed_at_95": {n: {"panels": int(m.sum()), "p": p[m].tolist()} for n, m in missed.items()},
+           "spearman_with_truth": {n: dict(zip(("rho", "p"), map(float, stats.spearmanr(p, theta[:, j])))) for j, n in enumerate(NAMES)}}
+    atomic_write_json(study / "error_law_check.json", out)
+    print(f"{len(rows)} panels: p < 0.05 in {np.sum(p < 0.05)} (binomial 95 % range {out['binomial_95_range_below_0.05']}), "
+          f"p < 0.32 in {np.sum(p < 0.32)} (range {out['binomial_95_range_below_0.32']}); KS against uniform p = {out['uniform_ks_p']:.3f}")
+    for n, m in missed.items():
+        print(f"  {n}: {m.sum()} missed at 95 %, their p: {np.round(p[m], 3).tolist()}")
+    for n, v in out["spearman_with_truth"].items():
+        print(f"  Spearman ρ(p, {n}) = {v['rho']:+.2f} (p {v['p']:.2f})")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 2, figsize=(9, 3.4))
+    ax[0].hist(p, bins=10, range=(0, 1), color="0.6", edgecolor="k")
+    ax[0].axhline(len(rows) / 10, color="C3", lw=1)
+    ax[0].set(xlabel="tail probability p of the residual at the truth", ylabel="panels", title="uniform if the law holds")
+    ax[1].scatter(theta[:, 3], p, c=np.log(theta[:, 0]), cmap="viridis", s=18)
+    for n, m in missed.items():
+        if n == "tau" and m.any():
+            ax[1].scatter(theta[m, 3], p[m], facecolor="none", edgecolor="C3", s=60, label="τ missed at 95 %")
+    ax[1].set(xscale="log", xlabel="true τ [µm]", ylabel="p", title="colour: ln shape")
+    ax[1].set_xticks([0.25, 0.5, 1.0, 2.0], ["0.25", "0.5", "1", "2"])
+    ax[1].minorticks_off()
+    ax[1].legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    tmp = study / "error_law_check.tmp.png"
+    fig.savefig(tmp, dpi=120)
+    tmp.replace(study / "error_law_check.png")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
