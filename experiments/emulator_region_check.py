@@ -7,7 +7,12 @@ new runs: `--runs` independent tracer runs (fresh generator arrays, ray and arra
 used by the emulator or the studies; the emulator's tracer settings otherwise) at a Latin hypercube of the
 region (shape, τ inside `--region`, scale and σ over the whole box, log-uniform), and the emulator's
 prediction there (its GP minus its fitted bias: what it predicts for an independent run). Reports per angle
-the mean miss (emulator − run) with its standard error and the RMS miss.
+the mean miss (emulator − run) with its standard error and the RMS miss, and splits the miss into its parts with
+the tracer the emulator was trained on (the common-random-number, CRN, evaluation: the mean over its four reference
+arrays) run at the same points: GP − CRN (the emulator's interpolation), CRN − run (the CRN tracer against fresh
+arrays, what the run-to-run bias models), and the fitted run-to-run bias there; and the emulator's sensitivity of
+L* to ln τ and ln σ at those points (central differences, factor 1.1 each way), which says which way a miss there
+moves a posterior.
 
 Writes experiments/output/emulator_region_check/summary.json (atomic).
 
@@ -63,16 +68,39 @@ def main(argv=None) -> int:
         print(f"run {i + 1}/{a.runs}: θ {np.round(row, 3).tolist()} L* {np.round(L, 1).tolist()}", flush=True)
     theta, runs = theta[kept], np.array(runs)
     pred = np.asarray(em(theta))
+    bias = np.asarray(em.run_to_run.mean(em.unit_coordinates(theta)))
+    crn = []
+    for i, row in enumerate(theta):  # the emulator's training target at the same points
+        crn.append(np.asarray(fn.evaluate(row[None]))[0])
+        print(f"CRN {i + 1}/{len(theta)}: L* {np.round(crn[-1], 1).tolist()}", flush=True)
+    crn = np.array(crn)
     miss = pred - runs
     n = len(kept)
+
+    def mean_se(x):
+        return {"mean": x.mean(0).tolist(), "se": (x.std(0, ddof=1) / np.sqrt(n)).tolist()}
+
+    slopes = {}
+    for j, name in ((2, "sigma"), (3, "tau")):
+        up, down = theta.copy(), theta.copy()
+        up[:, j] *= 1.1
+        down[:, j] /= 1.1
+        d = (np.asarray(em(up)) - np.asarray(em(down))) / (2 * np.log(1.1))
+        slopes[name] = {"median": np.median(d, 0).tolist(), "mean": d.mean(0).tolist()}
     out = {"region": {"shape": [a.shape_min, hi["shape"]], "tau": [a.tau_min, hi["tau"]]}, "runs": n, "seed0": SEED0,
            "angles": [float(x) for x in em.angles], "theta": theta.tolist(), "tracer_L": runs.tolist(), "emulator_L": pred.tolist(),
            "mean_miss": miss.mean(0).tolist(), "mean_miss_se": (miss.std(0, ddof=1) / np.sqrt(n)).tolist(),
-           "rms_miss": np.sqrt(np.mean(miss**2, 0)).tolist()}
+           "rms_miss": np.sqrt(np.mean(miss**2, 0)).tolist(), "crn_L": crn.tolist(),
+           "parts": {"gp_minus_crn": mean_se(pred + bias - crn), "crn_minus_run": mean_se(crn - runs), "fitted_bias": mean_se(bias)},
+           "dL_dln": slopes}
     Path(a.out).mkdir(parents=True, exist_ok=True)
     atomic_write_json(Path(a.out) / "summary.json", out)
     print("mean miss (emulator − run) per angle:", np.round(out["mean_miss"], 2).tolist(), "±", np.round(out["mean_miss_se"], 2).tolist())
     print("RMS miss:", np.round(out["rms_miss"], 2).tolist())
+    for k, v in out["parts"].items():
+        print(f"{k}:", np.round(v["mean"], 2).tolist(), "±", np.round(v["se"], 2).tolist())
+    for k, v in slopes.items():
+        print(f"dL*/dln {k}: median", np.round(v["median"], 1).tolist(), "mean", np.round(v["mean"], 1).tolist())
     return 0
 
 
