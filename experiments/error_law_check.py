@@ -10,13 +10,14 @@ p is uniform: 5 % of panels below 0.05. Too many small p where posteriors missed
 uniform p says the misses come from elsewhere (the posterior's geometry, the prior's edge). Reports p per panel,
 the fractions below 0.05 and 0.32 overall and among the panels whose 95 % interval of a parameter missed, and
 Spearman's ρ of p with each truth. `--independent` asks the same of the independent tracer runs the run-to-run terms
-were fitted to (in sample: what the law was made to hold).
+were fitted to (in sample: what the law was made to hold); with `--folds K` each fold's runs are judged by run-to-run
+terms refitted to the other folds (out of sample, as fresh panels are).
 
 Writes <study>/error_law_check.json and error_law_check.png, or with --independent
 experiments/output/error_law_check/independent.json (atomic).
 
 Run: python experiments/error_law_check.py [--study experiments/output/coverage_tracer_wide_seed2030] [--draws 4000]
-     python experiments/error_law_check.py --independent
+     python experiments/error_law_check.py --independent [--folds 5]
 """
 
 from __future__ import annotations
@@ -34,7 +35,14 @@ import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 from paintjax import atomic_write_json  # noqa: E402
-from paintjax.inverse import WIDE_TRACER_SETTINGS, TracerLStar, independent_check_design, independent_runs, make_forward  # noqa: E402
+from paintjax.inverse import (  # noqa: E402
+    WIDE_TRACER_SETTINGS,
+    TracerLStar,
+    fit_run_to_run,
+    independent_check_design,
+    independent_runs,
+    make_forward,
+)
 
 STUDY = Path(__file__).resolve().parent / "output" / "coverage_tracer_wide_seed2030"
 OUT_INDEPENDENT = Path(__file__).resolve().parent / "output" / "error_law_check" / "independent.json"
@@ -56,26 +64,43 @@ def tail_probabilities(em, theta, data, noise_var, draws, rng):
     return r, p
 
 
-def check_independent(draws: int, seed: int) -> int:
-    """The tail probabilities of the emulator's misses of its own independent check runs (no added noise)."""
+def check_independent(draws: int, seed: int, folds: int) -> int:
+    """The tail probabilities of the emulator's misses of its own independent check runs (no added noise): in sample,
+    or (folds > 1) each fold under run-to-run terms refitted to the other folds."""
+    import equinox as eqx
+
     em = make_forward("tracer-emulator-wide", NAMES)
     fn = TracerLStar(WIDE_TRACER_SETTINGS)  # the runs are cached at all its angles
-    theta, data = [], []
-    for _, t, seeds in independent_check_design(em.spec):
+    z, theta, data = [], [], []
+    for zb, t, seeds in independent_check_design(em.spec):
+        z.append(zb)
         theta.append(t)
         data.append(independent_runs(fn, t, seeds)["L"][:, [fn.angles.index(x) for x in em.angles]])
-    theta, data = np.concatenate(theta), np.concatenate(data)
+    z, theta, data = np.concatenate(z), np.concatenate(theta), np.concatenate(data)
     made = np.all(np.isfinite(data), axis=1)  # a θ whose platelets cannot fit the film has no run
-    theta, data = theta[made], data[made]
-    _, p = tail_probabilities(em, theta, data, 0.0, draws, np.random.default_rng(seed))
-    out = {"runs": int(len(p)), "draws": draws, "p": p.tolist(),
+    z, theta, data = z[made], theta[made], data[made]
+    rng = np.random.default_rng(seed)
+    if folds <= 1:
+        _, p = tail_probabilities(em, theta, data, 0.0, draws, rng)
+    else:
+        gp_miss = np.asarray(em(theta)) + np.asarray(em.run_to_run.mean(z)) - data  # the GP's miss, before any bias
+        fold = rng.permutation(len(data)) % folds
+        p = np.empty(len(data))
+        for k in range(folds):
+            term = fit_run_to_run(em.error, z[fold != k], gp_miss[fold != k])
+            em_k = eqx.tree_at(lambda e: (e.run_to_run, e.error), em, (term, em.error.with_correlation(term.correlation)))
+            _, p[fold == k] = tail_probabilities(em_k, theta[fold == k], data[fold == k], 0.0, draws, rng)
+            print(f"fold {k + 1}/{folds} done", flush=True)
+    out = {"runs": int(len(p)), "draws": draws, "folds": folds, "p": p.tolist(),
            "fraction_below": {"0.05": float(np.mean(p < 0.05)), "0.32": float(np.mean(p < 0.32))},
            "binomial_95_range_below_0.05": [int(x) for x in stats.binom(len(p), 0.05).interval(0.95)],
            "binomial_95_range_below_0.32": [int(x) for x in stats.binom(len(p), 0.32).interval(0.95)],
            "uniform_ks_p": float(stats.kstest(p, "uniform").pvalue)}
-    OUT_INDEPENDENT.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(OUT_INDEPENDENT, out)
-    print(f"{len(p)} independent runs (in sample): p < 0.05 in {np.sum(p < 0.05)} (binomial 95 % range "
+    path = OUT_INDEPENDENT if folds <= 1 else OUT_INDEPENDENT.with_name(f"independent_{folds}fold.json")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(path, out)
+    where = "in sample" if folds <= 1 else f"each of {folds} folds under terms fitted to the others"
+    print(f"{len(p)} independent runs ({where}): p < 0.05 in {np.sum(p < 0.05)} (binomial 95 % range "
           f"{out['binomial_95_range_below_0.05']}), p < 0.32 in {np.sum(p < 0.32)} (range {out['binomial_95_range_below_0.32']}); "
           f"KS against uniform p = {out['uniform_ks_p']:.3f}")
     return 0
@@ -87,11 +112,14 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=4000, help="Monte Carlo draws of the law per panel")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--independent", action="store_true", help="check the independent runs the run-to-run terms were fitted to")
+    ap.add_argument("--folds", type=int, default=1, help="with --independent: K > 1 judges each fold by terms refitted to the others")
     a = ap.parse_args(argv)
     if a.draws < 100:
         raise SystemExit(f"--draws must be at least 100, got {a.draws}")
+    if a.folds < 1 or a.folds > 20:
+        raise SystemExit(f"--folds must be in [1, 20], got {a.folds}")
     if a.independent:
-        return check_independent(a.draws, a.seed)
+        return check_independent(a.draws, a.seed, a.folds)
     study = Path(a.study)
     summary = json.loads((study / "summary.json").read_text())
     if summary.get("forward") != "tracer-emulator-wide" or tuple(summary.get("free", ())) != NAMES:

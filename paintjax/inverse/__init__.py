@@ -11,7 +11,7 @@ from ._analytic import AnalyticForward
 from ._chain import MAX_RHAT, MAX_STEPS, check_chain
 from ._design import DesignResult, design_to_target
 from ._emulator import Emulator, build_emulator, emulator_check, fit_emulator
-from ._error_model import EmulatorError, fit_emulator_error
+from ._error_model import EmulatorError, RunToRun, fit_emulator_error, fit_run_to_run
 from ._fit import FitResult, fit_least_squares
 from ._forward import CallableForward, ForwardModel
 from ._measured_inputs import MeasuredInputs, posterior_predictive_check
@@ -65,6 +65,8 @@ __all__ = [
     "Emulator",
     "EmulatorError",
     "fit_emulator_error",
+    "RunToRun",
+    "fit_run_to_run",
     "build_emulator",
     "emulator_check",
     "fit_emulator",
