@@ -121,6 +121,8 @@ def main(argv=None) -> int:
     if a.independent:
         return check_independent(a.draws, a.seed, a.folds)
     study = Path(a.study)
+    if not (study / "summary.json").is_file():
+        raise SystemExit(f"--study {study}: no summary.json there (a finished experiments/coverage.py study folder)")
     summary = json.loads((study / "summary.json").read_text())
     if summary.get("forward") != "tracer-emulator-wide" or tuple(summary.get("free", ())) != NAMES:
         raise SystemExit(f"{study}: not a tracer-emulator-wide study over {NAMES}")
