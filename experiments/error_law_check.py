@@ -64,6 +64,21 @@ def tail_probabilities(em, theta, data, noise_var, draws, rng):
     return r, p
 
 
+def uniformity(p) -> dict:
+    """How far tail probabilities p are from uniform: the fractions below 0.05 and 0.32, the binomial 95 % ranges of
+    those counts for a law that holds, and the Kolmogorov–Smirnov p-value against the uniform law."""
+    return {"fraction_below": {"0.05": float(np.mean(p < 0.05)), "0.32": float(np.mean(p < 0.32))},
+            "binomial_95_range_below_0.05": [int(x) for x in stats.binom(len(p), 0.05).interval(0.95)],
+            "binomial_95_range_below_0.32": [int(x) for x in stats.binom(len(p), 0.32).interval(0.95)],
+            "uniform_ks_p": float(stats.kstest(p, "uniform").pvalue)}
+
+
+def describe(p, u: dict) -> str:
+    """One line of the counts below 0.05 and 0.32 against their ranges (`uniformity`), and the KS p-value."""
+    return (f"p < 0.05 in {np.sum(p < 0.05)} (binomial 95 % range {u['binomial_95_range_below_0.05']}), p < 0.32 in "
+            f"{np.sum(p < 0.32)} (range {u['binomial_95_range_below_0.32']}); KS against uniform p = {u['uniform_ks_p']:.3f}")
+
+
 def check_independent(draws: int, seed: int, folds: int) -> int:
     """The tail probabilities of the emulator's misses of its own independent check runs (no added noise): in sample,
     or (folds > 1) each fold under run-to-run terms refitted to the other folds."""
@@ -91,18 +106,12 @@ def check_independent(draws: int, seed: int, folds: int) -> int:
             em_k = eqx.tree_at(lambda e: (e.run_to_run, e.error), em, (term, em.error.with_correlation(term.correlation)))
             _, p[fold == k] = tail_probabilities(em_k, theta[fold == k], data[fold == k], 0.0, draws, rng)
             print(f"fold {k + 1}/{folds} done", flush=True)
-    out = {"runs": int(len(p)), "draws": draws, "folds": folds, "p": p.tolist(),
-           "fraction_below": {"0.05": float(np.mean(p < 0.05)), "0.32": float(np.mean(p < 0.32))},
-           "binomial_95_range_below_0.05": [int(x) for x in stats.binom(len(p), 0.05).interval(0.95)],
-           "binomial_95_range_below_0.32": [int(x) for x in stats.binom(len(p), 0.32).interval(0.95)],
-           "uniform_ks_p": float(stats.kstest(p, "uniform").pvalue)}
+    out = {"runs": int(len(p)), "draws": draws, "folds": folds, "p": p.tolist(), **uniformity(p)}
     path = OUT_INDEPENDENT if folds <= 1 else OUT_INDEPENDENT.with_name(f"independent_{folds}fold.json")
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(path, out)
     where = "in sample" if folds <= 1 else f"each of {folds} folds under terms fitted to the others"
-    print(f"{len(p)} independent runs ({where}): p < 0.05 in {np.sum(p < 0.05)} (binomial 95 % range "
-          f"{out['binomial_95_range_below_0.05']}), p < 0.32 in {np.sum(p < 0.32)} (range {out['binomial_95_range_below_0.32']}); "
-          f"KS against uniform p = {out['uniform_ks_p']:.3f}")
+    print(f"{len(p)} independent runs ({where}): {describe(p, out)}")
     return 0
 
 
@@ -134,15 +143,11 @@ def main(argv=None) -> int:
     missed = {n: np.array([not r_["inside"][f"{n}@0.95"] for r_ in rows]) for n in NAMES}
     out = {"study": str(study.name), "panels": len(rows), "draws": a.draws, "noise_sd": NOISE_SD,
            "p": p.tolist(), "residual": r.tolist(), "angles": [float(x) for x in em.angles],
-           "fraction_below": {"0.05": float(np.mean(p < 0.05)), "0.32": float(np.mean(p < 0.32))},
-           "binomial_95_range_below_0.05": [int(x) for x in stats.binom(len(rows), 0.05).interval(0.95)],
-           "binomial_95_range_below_0.32": [int(x) for x in stats.binom(len(rows), 0.32).interval(0.95)],
-           "uniform_ks_p": float(stats.kstest(p, "uniform").pvalue),
+           **uniformity(p),
            "missed_at_95": {n: {"panels": int(m.sum()), "p": p[m].tolist()} for n, m in missed.items()},
            "spearman_with_truth": {n: dict(zip(("rho", "p"), map(float, stats.spearmanr(p, theta[:, j])))) for j, n in enumerate(NAMES)}}
     atomic_write_json(study / "error_law_check.json", out)
-    print(f"{len(rows)} panels: p < 0.05 in {np.sum(p < 0.05)} (binomial 95 % range {out['binomial_95_range_below_0.05']}), "
-          f"p < 0.32 in {np.sum(p < 0.32)} (range {out['binomial_95_range_below_0.32']}); KS against uniform p = {out['uniform_ks_p']:.3f}")
+    print(f"{len(rows)} panels: {describe(p, out)}")
     for n, m in missed.items():
         print(f"  {n}: {m.sum()} missed at 95 %, their p: {np.round(p[m], 3).tolist()}")
     for n, v in out["spearman_with_truth"].items():
