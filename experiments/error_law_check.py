@@ -103,7 +103,7 @@ def check_independent(draws: int, seed: int, folds: int) -> int:
         p = np.empty(len(data))
         for k in range(folds):
             term = fit_run_to_run(em.error, z[fold != k], gp_miss[fold != k])
-            em_k = eqx.tree_at(lambda e: (e.run_to_run, e.error), em, (term, em.error.with_correlation(term.correlation)))
+            em_k = eqx.tree_at(lambda e: (e.run_to_run, e.error), em, (term, term.law(em.error)))
             _, p[fold == k] = tail_probabilities(em_k, theta[fold == k], data[fold == k], 0.0, draws, rng)
             print(f"fold {k + 1}/{folds} done", flush=True)
     out = {"runs": int(len(p)), "draws": draws, "folds": folds, "p": p.tolist(), **uniformity(p)}

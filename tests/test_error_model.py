@@ -193,7 +193,7 @@ def test_run_to_run_fit_recovers_a_bias_over_the_box_and_a_regional_spread():
     extra = rng.standard_normal((600, 2)) * sd * np.exp((z - 0.5) @ slope)[:, None]
     truth_mean = np.c_[np.ones(600), z - 0.5] @ bias
     drawn = law.with_correlation([[1.0, 0.6], [0.6, 1.0]])
-    term = fit_run_to_run(law, z, drawn.sample(rng, np.zeros((600, 2)), z) + extra + truth_mean)
+    term = fit_run_to_run(law, z, drawn.sample(rng, np.zeros((600, 2)), z) + extra + truth_mean, df=2.4)
     assert float(term.correlation[0, 1]) == pytest.approx(0.6, abs=0.15)
     se = np.asarray(term.bias_se)
     np.testing.assert_allclose(se[:, 1] ** 2, np.diag(np.asarray(term.bias_cov)[1]))  # the marginal SDs of the covariance
@@ -209,9 +209,33 @@ def test_run_to_run_fit_recovers_a_bias_over_the_box_and_a_regional_spread():
     picked = term.select([1])
     np.testing.assert_allclose(np.asarray(picked.mean(jnp.asarray(z[:3]))), np.asarray(term.mean(jnp.asarray(z[:3])))[:, [1]])
     # without a bias in the data, none is found beyond its errors
-    term0 = fit_run_to_run(law, z, law.sample(rng, np.zeros((600, 2)), z) + extra)
+    term0 = fit_run_to_run(law, z, law.sample(rng, np.zeros((600, 2)), z) + extra, df=2.4)
     se0 = np.asarray(term0.bias_se)
     assert np.all(np.abs(np.asarray(term0.bias)) < 3.5 * se0)
     assert abs(float(term0.correlation[0, 1])) < 0.15
     with pytest.raises(ValueError, match="must be finite"):
         fit_run_to_run(law, z, np.full((600, 2), np.nan))
+    assert float(term.df) == 2.4 and term.df_grid.size == 0  # ν given: none chosen
+    np.testing.assert_allclose(np.asarray(term.law(law).correlation), np.asarray(term.correlation))
+
+
+@pytest.mark.parametrize("true_df, chosen", [(1.5, 1.5), (50.0, 8.0)])
+def test_run_to_run_fit_chooses_the_tail_of_the_misses_by_cross_validation(true_df, chosen):
+    """Misses drawn with a heavier (ν 1.5) or a lighter (ν 50) tail than the cross-validated law claims (ν 4): the fit
+    chooses, of ν 1.5 and 8, the one nearer the truth by the held-out folds' log density, and its law carries it."""
+    from paintjax.inverse._error_model import fit_run_to_run
+
+    claimed = EmulatorError([1.0, 1.5], [0.0, 0.0], 4.0)
+    rng = np.random.default_rng(11)
+    z = rng.random((300, 2))
+    truth = EmulatorError([1.0, 1.5], [0.0, 0.0], true_df)
+    misses = truth.sample(rng, np.full((300, 2), 0.25), z)
+    term = fit_run_to_run(claimed, z, misses, df_grid=(1.5, 8.0), folds=3)
+    assert float(term.df) == chosen and term.law(claimed).df == chosen
+    np.testing.assert_array_equal(np.asarray(term.df_grid), [1.5, 8.0])
+    assert np.all(np.isfinite(np.asarray(term.df_score)))
+    assert float(term.df_score[[1.5, 8.0].index(chosen)]) == float(np.max(np.asarray(term.df_score)))
+    with pytest.raises(ValueError, match="folds"):
+        fit_run_to_run(claimed, z, misses, folds=1)
+    with pytest.raises(ValueError, match="df_grid"):
+        fit_run_to_run(claimed, z, misses, df_grid=(0.5,))

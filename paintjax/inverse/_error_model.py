@@ -21,8 +21,9 @@ the multivariate Student-t, with ν → ∞ the normal. Angles left out of a mea
 
 An emulator of a tracer run with common random numbers (one array, one ray stream) also misses what an
 independent run gives (another array, other rays): `RunToRun` holds that miss's bias, linear over the box,
-its spread, normal with a log-linear scale, and the correlation between the angles of the whole miss,
-fitted to misses against independent runs (`fit_run_to_run`).
+its spread, normal with a log-linear scale, and the correlation between the angles and the degrees of freedom
+of the whole miss, fitted to misses against independent runs (`fit_run_to_run`; ν chosen by cross-validation,
+so that the law holds runs it was not fitted to).
 """
 
 from __future__ import annotations
@@ -223,19 +224,29 @@ def fit_emulator_error(z: np.ndarray, errors: np.ndarray) -> EmulatorError:
 #: Prior SD [L*] of each coefficient of a run-to-run bias (its value at the box centre, and its change across the
 #: box per parameter): weak against 96 independent runs, it keeps a fit to a handful of runs from chasing noise.
 BIAS_PRIOR_SD = 5.0
+#: The degrees of freedom `fit_run_to_run` chooses among for the law against independent runs, by cross-validated
+#: (`RUN_TO_RUN_FOLDS`-fold) log predictive density of the held-out misses: the cross-validated law's ν is fitted to
+#: the GP's misses of its own CRN runs, and a miss against an independent run (another array, other rays) can have a
+#: heavier tail.
+RUN_TO_RUN_DF_GRID, RUN_TO_RUN_FOLDS = (1.5, 2.0, 2.5, 3.0, 4.0, 6.0, 10.0), 5
 
 
 class RunToRun(eqx.Module):
     """What an emulator of a common-random-number (CRN) tracer misses against independent runs (fresh arrays and
     rays), beyond its cross-validated error law: a bias linear over the box, a normal spread whose scale varies
-    log-linearly over the box, and the correlation between the angles of the whole miss (`fit_run_to_run`).
+    log-linearly over the box, and the correlation between the angles and the degrees of freedom of the error law's
+    part of the miss (`fit_run_to_run`).
 
     Attributes:
         bias: (p + 1, m) per angle: the bias at the box centre, then its change per unit-cube coordinate [L*].
         bias_cov: (m, p + 1, p + 1) the bias coefficients' covariance (inverse Hessian of the fit).
         sd: (m,) the spread's scale at the box centre [L*]; slope: (p,) its log-linear change (shared by the angles).
         correlation: (m, m) the correlation between the angles of the error law's part of the miss against an
-            independent run (it replaces the cross-validated law's, `EmulatorError.with_correlation`).
+            independent run (it replaces the cross-validated law's, `law`).
+        df: () ν of the error law's part of the miss against an independent run (it replaces the cross-validated
+            law's, `law`).
+        df_grid, df_score: (k,) the ν tried and each one's cross-validated log predictive density of the misses
+            (empty when ν was given).
     """
 
     bias: Float[Array, "q m"]
@@ -243,11 +254,19 @@ class RunToRun(eqx.Module):
     sd: Float[Array, " m"]
     slope: Float[Array, " p"]
     correlation: Float[Array, "m m"]
+    df: Float[Array, ""]
+    df_grid: Float[Array, " k"]
+    df_score: Float[Array, " k"]
 
     @property
     def bias_se(self) -> Float[Array, "q m"]:
         """Standard errors of `bias` (its coefficients' marginal SDs), laid out as `bias`."""
         return jnp.sqrt(jnp.diagonal(self.bias_cov, axis1=1, axis2=2)).T
+
+    def law(self, error: EmulatorError) -> EmulatorError:
+        """The cross-validated error law `error` with the correlation and ν fitted against independent runs (not
+        traceable: a new ν needs a new mixture grid)."""
+        return EmulatorError(error.scale, error.slope, float(self.df), self.correlation)
 
     def mean(self, z: Float[Array, "n p"]) -> Float[Array, "n m"]:
         """The bias (emulator of the CRN tracer − independent run) at unit-cube points z."""
@@ -261,7 +280,8 @@ class RunToRun(eqx.Module):
     def select(self, rows) -> "RunToRun":
         """The terms of some output angles (their rows, in that order)."""
         rows = np.asarray(rows)
-        return RunToRun(self.bias[:, rows], self.bias_cov[rows], self.sd[rows], self.slope, self.correlation[np.ix_(rows, rows)])
+        return RunToRun(self.bias[:, rows], self.bias_cov[rows], self.sd[rows], self.slope, self.correlation[np.ix_(rows, rows)],
+                        self.df, self.df_grid, self.df_score)
 
 
 def _design(z):
@@ -269,42 +289,97 @@ def _design(z):
     return jnp.concatenate([jnp.ones(z.shape[:-1] + (1,)), z - 0.5], axis=-1)
 
 
-def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray) -> RunToRun:
+def _unpack_run_to_run(q, m: int, p: int):
+    nb = (p + 1) * m
+    return (jnp.exp(q[:m]), q[m:m + p], q[m + p:m + p + nb].reshape(p + 1, m), correlation_from_unconstrained(q[m + p + nb:], m))
+
+
+def _run_to_run_row_log_density(q, law: EmulatorError, z, r):
+    """log p of each miss r (n, m) at unit-cube points z (n, p) under the run-to-run terms packed in q and `law`."""
+    m, p = r.shape[1], z.shape[1]
+    sd, slope, bias, R = _unpack_run_to_run(q, m, p)
+    return law.with_correlation(R).residual_log_density(r - _design(z) @ bias, regional_scale(sd, slope, z) ** 2, z)
+
+
+def _run_to_run_loss(q, law: EmulatorError, weight, z, r):
+    """The negative log posterior of the run-to-run terms packed in q given the misses with weight 1 (0: held out)."""
+    m, p = r.shape[1], z.shape[1]
+    _, _, bias, R = _unpack_run_to_run(q, m, p)
+    ll = _run_to_run_row_log_density(q, law, z, r)
+    return -jnp.sum(weight * ll) + 0.5 * jnp.sum((bias / BIAS_PRIOR_SD) ** 2) - _lkj_log_prior(R)
+
+
+_loss_and_grad = eqx.filter_jit(eqx.filter_value_and_grad(_run_to_run_loss))
+_row_log_density = eqx.filter_jit(_run_to_run_row_log_density)
+
+
+def _fit_run_to_run_terms(law: EmulatorError, z, r, weight) -> np.ndarray:
+    """The MAP of the run-to-run terms (packed) under `law` from the misses with weight 1."""
+    from scipy import optimize
+
+    m, p = r.shape[1], z.shape[1]
+    x, wt = np.asarray(_design(z)), np.asarray(weight, float)
+    start = np.linalg.lstsq(x * wt[:, None], np.asarray(r) * wt[:, None], rcond=None)[0]
+    left = (np.asarray(r) - x @ start)[wt > 0]
+    q0 = np.r_[np.log(np.std(left, axis=0) + 1e-9), np.zeros(p), start.ravel(), np.zeros(m * (m - 1) // 2)]
+    wj = jnp.asarray(wt)
+
+    def fun(q):
+        v, g = _loss_and_grad(jnp.asarray(q), law, wj, z, r)
+        return float(v), np.asarray(g)
+
+    return optimize.minimize(fun, q0, jac=True, method="L-BFGS-B").x
+
+
+def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray, df: float | None = None,
+                   df_grid=RUN_TO_RUN_DF_GRID, folds: int = RUN_TO_RUN_FOLDS, seed: int = 0) -> RunToRun:
     """Maximum a-posteriori `RunToRun` of an emulator's misses r (n, m) against independent runs at unit-cube
     points z (n, p): r = b(z) + e + ε, e ~ `error` (the emulator's cross-validated law against the CRN tracer it
-    was trained on) with its correlation between the angles refitted, b(z) = b₀ + B·(z − ½) the CRN tracer's bias
-    against fresh runs (each coefficient with a normal prior of SD `BIAS_PRIOR_SD`), ε ~ Normal(0, s_j² exp(2γ·(z − ½)))
-    the run-to-run spread (another array, other rays), the correlation with the LKJ prior of `fit_emulator_error`.
-    The bias's covariance is the inverse Hessian at the optimum.
+    was trained on) with its correlation between the angles refitted and its ν chosen anew, b(z) = b₀ + B·(z − ½) the
+    CRN tracer's bias against fresh runs (each coefficient with a normal prior of SD `BIAS_PRIOR_SD`),
+    ε ~ Normal(0, s_j² exp(2γ·(z − ½))) the run-to-run spread (another array, other rays), the correlation with the
+    LKJ prior of `fit_emulator_error`. The bias's covariance is the inverse Hessian at the optimum.
+
+    Arguments:
+        error: the emulator's cross-validated `EmulatorError`.
+        z, residuals: the unit-cube points (n, p) of the independent runs and the emulator's misses there (n, m).
+        df: ν of the law against the runs; default: the one of `df_grid` whose terms, fitted to all folds but one,
+            give the held-out fold's misses the highest log density, summed over `folds` random folds (`seed`).
+
+    Returns:
+        `RunToRun` with the fitted terms, ν, and each tried ν's cross-validated log predictive density.
     """
     import jax
-    from scipy import optimize
 
     z, r = np.asarray(z, float), np.asarray(residuals, float)
     if z.ndim != 2 or r.ndim != 2 or z.shape[0] != r.shape[0] or r.shape[1] != error.scale.shape[0] or not np.all(np.isfinite(r)):
         raise ValueError(f"z (n, p) and residuals (n, {error.scale.shape[0]}) must be finite with the same n, got {z.shape} and {r.shape}")
-    m, p = r.shape[1], z.shape[1]
+    n, m, p = r.shape[0], r.shape[1], z.shape[1]
+    zj, rj = jnp.asarray(z), jnp.asarray(r)
+    grid, score = np.zeros(0), np.zeros(0)
+    if df is None:
+        grid = np.asarray(df_grid, float)
+        if grid.ndim != 1 or grid.size < 1 or not np.all(grid >= DF_RANGE[0]):
+            raise ValueError(f"df_grid must be a non-empty sequence of ν >= {DF_RANGE[0]:g}, got {df_grid!r}")
+        if not 2 <= folds <= n:
+            raise ValueError(f"folds must be in [2, {n}] (the number of misses), got {folds}")
+        fold = np.random.default_rng(seed).permutation(n) % folds
+        score = np.zeros(grid.size)
+        for i, nu in enumerate(grid):
+            law = EmulatorError(error.scale, error.slope, nu, error.correlation)
+            for k in range(folds):
+                q = _fit_run_to_run_terms(law, zj, rj, fold != k)
+                score[i] += float(jnp.sum(_row_log_density(jnp.asarray(q), law, zj[fold == k], rj[fold == k])))
+        df = float(grid[np.argmax(score)])
+    elif not df >= DF_RANGE[0]:
+        raise ValueError(f"df must be >= {DF_RANGE[0]:g} (inf for a normal law), got {df!r}")
+    law = EmulatorError(error.scale, error.slope, df, error.correlation)
+    ones = jnp.ones(n)
+    q = jnp.asarray(_fit_run_to_run_terms(law, zj, rj, ones))
+    sd, slope, bias, R = _unpack_run_to_run(q, m, p)
     nb = (p + 1) * m
-    zj, rj, x = jnp.asarray(z), jnp.asarray(r), _design(z)
-
-    def unpack(q):
-        return (jnp.exp(q[:m]), q[m:m + p], q[m + p:m + p + nb].reshape(p + 1, m),
-                correlation_from_unconstrained(q[m + p + nb:], m))
-
-    @jax.jit
-    def objective(q):
-        sd, slope, bias, R = unpack(q)
-        var = regional_scale(sd, slope, zj) ** 2
-        law = error.with_correlation(R)
-        return (-jnp.sum(law.residual_log_density(rj - x @ bias, var, zj)) + 0.5 * jnp.sum((bias / BIAS_PRIOR_SD) ** 2)
-                - _lkj_log_prior(R))
-
-    grad = jax.jit(jax.grad(objective))
-    start = np.linalg.lstsq(np.asarray(x), r, rcond=None)[0]
-    q0 = np.r_[np.log(np.std(r - np.asarray(x) @ start, axis=0) + 1e-9), np.zeros(p), start.ravel(), np.zeros(m * (m - 1) // 2)]
-    res = optimize.minimize(lambda q: float(objective(jnp.asarray(q))), q0, jac=lambda q: np.asarray(grad(jnp.asarray(q))), method="L-BFGS-B")
-    sd, slope, bias, R = unpack(jnp.asarray(res.x))
-    cov = np.linalg.pinv(np.asarray(jax.hessian(objective)(jnp.asarray(res.x))))[m + p:m + p + nb, m + p:m + p + nb]  # rows (k, j): k·m + j
+    hess = jax.hessian(lambda x: _run_to_run_loss(x, law, ones, zj, rj))(q)
+    cov = np.linalg.pinv(np.asarray(hess))[m + p:m + p + nb, m + p:m + p + nb]  # rows (k, j): k·m + j
     idx = np.arange(p + 1)[:, None] * m + np.arange(m)[None, :]
     bias_cov = np.stack([cov[np.ix_(idx[:, j], idx[:, j])] for j in range(m)])
-    return RunToRun(bias, jnp.asarray(bias_cov), sd, slope, R)
+    return RunToRun(bias, jnp.asarray(bias_cov), sd, slope, R, jnp.asarray(float(df)), jnp.asarray(grid), jnp.asarray(score))
