@@ -237,5 +237,9 @@ def test_run_to_run_fit_chooses_the_tail_of_the_misses_by_cross_validation(true_
     assert float(term.df_score[[1.5, 8.0].index(chosen)]) == float(np.max(np.asarray(term.df_score)))
     with pytest.raises(ValueError, match="folds"):
         fit_run_to_run(claimed, z, misses, folds=1)
+    few = fit_run_to_run(claimed, z[:4], misses[:4], df_grid=(1.5, 8.0))  # fewer misses than folds: leave-one-out
+    assert float(few.df) in (1.5, 8.0) and np.all(np.isfinite(np.asarray(few.df_score)))
+    one = fit_run_to_run(claimed, z[:1], misses[:1])  # nothing to hold out: the law's own ν
+    assert float(one.df) == 4.0 and one.df_grid.size == 0
     with pytest.raises(ValueError, match="df_grid"):
         fit_run_to_run(claimed, z, misses, df_grid=(0.5,))

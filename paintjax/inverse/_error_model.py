@@ -344,7 +344,8 @@ def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray, d
         error: the emulator's cross-validated `EmulatorError`.
         z, residuals: the unit-cube points (n, p) of the independent runs and the emulator's misses there (n, m).
         df: ν of the law against the runs; default: the one of `df_grid` whose terms, fitted to all folds but one,
-            give the held-out fold's misses the highest log density, summed over `folds` random folds (`seed`).
+            give the held-out fold's misses the highest log density, summed over `folds` random folds (`seed`;
+            leave-one-out when there are fewer misses than folds; with one miss, `error`'s own ν).
 
     Returns:
         `RunToRun` with the fitted terms, ν, and each tried ν's cross-validated log predictive density.
@@ -361,16 +362,20 @@ def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray, d
         grid = np.asarray(df_grid, float)
         if grid.ndim != 1 or grid.size < 1 or not np.all(grid >= DF_RANGE[0]):
             raise ValueError(f"df_grid must be a non-empty sequence of ν >= {DF_RANGE[0]:g}, got {df_grid!r}")
-        if not 2 <= folds <= n:
-            raise ValueError(f"folds must be in [2, {n}] (the number of misses), got {folds}")
-        fold = np.random.default_rng(seed).permutation(n) % folds
+        if not folds >= 2:
+            raise ValueError(f"folds must be >= 2, got {folds}")
+        k_folds = min(int(folds), n)
+        fold = np.random.default_rng(seed).permutation(n) % k_folds
         score = np.zeros(grid.size)
-        for i, nu in enumerate(grid):
+        for i, nu in enumerate(grid if k_folds >= 2 else ()):
             law = EmulatorError(error.scale, error.slope, nu, error.correlation)
-            for k in range(folds):
+            for k in range(k_folds):
                 q = _fit_run_to_run_terms(law, zj, rj, fold != k)
                 score[i] += float(jnp.sum(_row_log_density(jnp.asarray(q), law, zj[fold == k], rj[fold == k])))
-        df = float(grid[np.argmax(score)])
+        if k_folds >= 2:
+            df = float(grid[np.argmax(score)])
+        else:  # one miss: nothing to hold out
+            df, grid, score = error.df, np.zeros(0), np.zeros(0)
     elif not df >= DF_RANGE[0]:
         raise ValueError(f"df must be >= {DF_RANGE[0]:g} (inf for a normal law), got {df!r}")
     law = EmulatorError(error.scale, error.slope, df, error.correlation)
