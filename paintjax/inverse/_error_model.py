@@ -126,6 +126,10 @@ class EmulatorError(eqx.Module):
         rows = np.asarray(rows)
         return EmulatorError(self.scale[rows], self.slope, self.df, self.correlation[np.ix_(rows, rows)])
 
+    def with_df(self, df: float) -> "EmulatorError":
+        """This law with another ν (not traceable: a new ν needs a new mixture grid)."""
+        return EmulatorError(self.scale, self.slope, df, self.correlation)
+
     def with_correlation(self, correlation) -> "EmulatorError":
         """This law with another correlation between the angles (traceable: the mixture grid is kept)."""
         return eqx.tree_at(lambda e: e.correlation, self, jnp.asarray(correlation, float))
@@ -266,7 +270,7 @@ class RunToRun(eqx.Module):
     def law(self, error: EmulatorError) -> EmulatorError:
         """The cross-validated error law `error` with the correlation and ν fitted against independent runs (not
         traceable: a new ν needs a new mixture grid)."""
-        return EmulatorError(error.scale, error.slope, float(self.df), self.correlation)
+        return error.with_df(float(self.df)).with_correlation(self.correlation)
 
     def mean(self, z: Float[Array, "n p"]) -> Float[Array, "n m"]:
         """The bias (emulator of the CRN tracer − independent run) at unit-cube points z."""
@@ -331,6 +335,19 @@ def _fit_run_to_run_terms(law: EmulatorError, z, r, weight) -> np.ndarray:
     return optimize.minimize(fun, q0, jac=True, method="L-BFGS-B").x
 
 
+def _cross_validated_df(error: EmulatorError, z, r, grid: np.ndarray, folds: int, seed: int) -> np.ndarray:
+    """Each ν of `grid`'s summed log density of the held-out misses, over `folds` random folds (`seed`), under the
+    terms fitted to the other folds."""
+    fold = np.random.default_rng(seed).permutation(r.shape[0]) % folds
+    score = np.zeros(grid.size)
+    for i, nu in enumerate(grid):
+        law = error.with_df(nu)
+        for k in range(folds):
+            q = _fit_run_to_run_terms(law, z, r, fold != k)
+            score[i] += float(jnp.sum(_row_log_density(jnp.asarray(q), law, z[fold == k], r[fold == k])))
+    return score
+
+
 def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray, df: float | None = None,
                    df_grid=RUN_TO_RUN_DF_GRID, folds: int = RUN_TO_RUN_FOLDS, seed: int = 0) -> RunToRun:
     """Maximum a-posteriori `RunToRun` of an emulator's misses r (n, m) against independent runs at unit-cube
@@ -364,21 +381,14 @@ def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray, d
             raise ValueError(f"df_grid must be a non-empty sequence of ν >= {DF_RANGE[0]:g}, got {df_grid!r}")
         if not folds >= 2:
             raise ValueError(f"folds must be >= 2, got {folds}")
-        k_folds = min(int(folds), n)
-        fold = np.random.default_rng(seed).permutation(n) % k_folds
-        score = np.zeros(grid.size)
-        for i, nu in enumerate(grid if k_folds >= 2 else ()):
-            law = EmulatorError(error.scale, error.slope, nu, error.correlation)
-            for k in range(k_folds):
-                q = _fit_run_to_run_terms(law, zj, rj, fold != k)
-                score[i] += float(jnp.sum(_row_log_density(jnp.asarray(q), law, zj[fold == k], rj[fold == k])))
-        if k_folds >= 2:
+        if n >= 2:
+            score = _cross_validated_df(error, zj, rj, grid, min(int(folds), n), seed)
             df = float(grid[np.argmax(score)])
         else:  # one miss: nothing to hold out
-            df, grid, score = error.df, np.zeros(0), np.zeros(0)
+            df, grid = error.df, np.zeros(0)
     elif not df >= DF_RANGE[0]:
         raise ValueError(f"df must be >= {DF_RANGE[0]:g} (inf for a normal law), got {df!r}")
-    law = EmulatorError(error.scale, error.slope, df, error.correlation)
+    law = error.with_df(df)
     ones = jnp.ones(n)
     q = jnp.asarray(_fit_run_to_run_terms(law, zj, rj, ones))
     sd, slope, bias, R = _unpack_run_to_run(q, m, p)
