@@ -91,6 +91,7 @@ from .inverse import (
     fit_least_squares,
     make_forward,
     make_spec,
+    predictive_plot,
     register_forward,
     sample_posterior,
     save_netcdf,

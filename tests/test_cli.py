@@ -178,6 +178,20 @@ def test_array_refuses_leftover_overlaps(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["overlaps_exact"] > 0
 
 
+@pytest.mark.parametrize("argv,expected", [
+    (["posterior"], "rq"), (["fit", "--posterior", "--sample", "silver2"], "rq"), (["posterior", "--inputs", "none"], "none"),
+    (["posterior", "--inputs", "scan_pv"], "scan_pv"), (["posterior", "--measured", "143,107,59,37,32"], "none"),
+    (["fit"], "none"), (["fit", "--sample", "silver2"], "none"),
+])
+def test_a_reference_samples_posterior_uses_its_published_inputs(argv, expected):
+    """`paintjax posterior --sample …` combines the L* with the sample's published inputs (σ read as Rq) unless
+    `--inputs none` asks for the L* alone; measured values without a sample, and plain fits, have no inputs."""
+    from paintjax.cli._fit import resolve_inputs
+    from paintjax.cli._main import build_parser
+
+    assert resolve_inputs(build_parser().parse_args(argv)) == expected
+
+
 def test_chain_checks_come_before_the_fit(tmp_path, capsys, monkeypatch):
     """An unreadable --chain is refused before the least-squares fit, naming --chain, and left as it is."""
     import paintjax.inverse._fit as fit_module

@@ -61,7 +61,7 @@ def test_design_bad_inputs():
         design_to_target(MIRROR, [140, 110, 60, 35, 30], free=("shape", "discrepancy"))
 
 
-def test_cli_design_and_fit(capsys):
+def test_cli_design_and_fit(capsys, tmp_path):
     rc = main(["design", "--target", "140,110,60,35,30", "--forward", "analytic-mirror", "--free", "shape,scale",
                "--fix", "diffuse=0", "--starts", "4", "--json"])
     out = json.loads(capsys.readouterr().out)
@@ -73,17 +73,32 @@ def test_cli_design_and_fit(capsys):
     assert set(out) >= {"params", "stderr", "posterior", "L_star_fit", "seconds"}
     assert set(out["params"]) == {"shape", "scale", "diffuse"} and out["posterior"] is None
     rc = main(["fit", "--sample", "silver2", "--forward", "analytic-mirror", "--free", "shape,scale,diffuse", "--starts", "3",
-               "--posterior", "--walkers", "8", "--max-steps", "60", "--min-ess", "0", "--json"])
+               "--posterior", "--inputs", "none", "--walkers", "8", "--max-steps", "60", "--min-ess", "0", "--json"])
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and set(out["posterior"]) >= {"mean", "q05", "q95", "tau_int"}
     assert set(out["posterior"]["mean"]) >= {"shape", "scale", "diffuse", "discrepancy", "mean_tilt"}
     assert 0.0 <= out["posterior"]["predictive_p_value"] <= 1.0 and out["posterior"]["inputs"] == "none"
     # the published tilt law as data (mirror platelets: no σ, τ, so no roughness reading)
     rc = main(["fit", "--sample", "silver2", "--forward", "analytic-mirror", "--free", "shape,scale,diffuse", "--starts", "3",
-               "--posterior", "--inputs", "rq", "--tilt-platelets", "500", "--walkers", "8", "--max-steps", "60", "--min-ess", "0", "--json"])
+               "--posterior", "--inputs", "rq", "--tilt-platelets", "500", "--walkers", "8", "--max-steps", "60", "--min-ess", "0", "--json",
+               "--out", str(tmp_path)])
     out = json.loads(capsys.readouterr().out)
     assert rc == 0 and set(out["posterior"]["input_shift"]) == {"shape", "scale"}
+    for name in ("posterior.nc", "corner.png", "predictive.png"):  # with --out: the chain, its corner plot, the predictive band
+        assert (tmp_path / name).stat().st_size > 1000, name
     assert out["posterior"]["input_shift"]["shape"]["published"] == 2.98
+
+
+def test_readme_design_example_is_reached(capsys):
+    """The README's `paintjax design --target 148,124,73,35,35` (the default forward: the shipped tracer emulator)
+    reaches its target within the default tolerance, 1 L* at every angle."""
+    from pathlib import Path
+
+    assert "paintjax design --target 148,124,73,35,35" in (Path(__file__).parents[1] / "README.md").read_text(encoding="utf-8")
+    rc = main(["design", "--target", "148,124,73,35,35", "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert rc == 0 and out["feasible"] is True, out["message"]
+    assert np.max(np.abs(np.asarray(out["L_star"]) - [148, 124, 73, 35, 35])) <= 1.0
 
 
 def test_cli_errors_are_one_line(capsys):

@@ -96,15 +96,16 @@ def add_fit_arguments(p) -> None:
     p.add_argument("--max-steps", type=int, default=MAX_STEPS, help=f"largest number of emcee steps (default {MAX_STEPS})")
     p.add_argument("--min-ess", type=float, default=1000.0, help="required effective sample size (default 1000; 0: stop on the autocorrelation-time rule alone)")
     p.add_argument("--max-rhat", type=float, default=MAX_RHAT, help=f"largest split R-hat of any parameter, walkers as chains (default {MAX_RHAT})")
-    p.add_argument("--inputs", choices=("none", "rq", "local_pv", "scan_pv"), default="none",
+    p.add_argument("--inputs", choices=("none", "rq", "local_pv", "scan_pv"), default=None,
                    help="with --posterior and --sample: add the sample's published inputs as data, the roughness through the "
                    "virtual profilometer with σ read as the given definition (rq: RMS height) and the tilt law as a gamma fit to "
-                   "--tilt-platelets measured tilts (docs/input_measurement.md); default none (inputs only through the prior box)")
+                   "--tilt-platelets measured tilts (docs/input_measurement.md); default rq for a reference sample's posterior, "
+                   "none otherwise (none: the L* alone, the inputs only through the prior box)")
     p.add_argument("--tilt-platelets", type=int, default=200,
                    help="platelets behind the published tilt law, for --inputs (default 200, an assumption; 0: tilt law not used)")
     p.add_argument("--chain", help="HDF5 file of the chain (resumes a chain of the same run; default: none)")
     p.add_argument("--overwrite", action="store_true", help="replace a stored --chain that was sampled for another run")
-    p.add_argument("--out", help="folder for posterior.nc and corner.png (default: none written)")
+    p.add_argument("--out", help="folder for posterior.nc, corner.png and predictive.png (default: none written)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_json_argument(p)
 
@@ -124,6 +125,7 @@ def compute(args) -> dict:
     fixed = parse_fixed(args.fix)
     free = parse_free(args.free, [n for n in DEFAULT_FREE if n not in fixed])
     check_run_sizes(args)
+    args.inputs = resolve_inputs(args)
     if args.inputs != "none" and not args.posterior:
         raise ValueError("--inputs applies to --posterior (the published inputs enter the posterior as data)")
     if args.inputs != "none" and args.measured is not None:
@@ -158,8 +160,9 @@ def compute(args) -> dict:
         "_fit": fr,
     }
     if args.posterior:
+        from ..inverse._panels import STANDARD_ANGLES
         from ..inverse._posterior import sample_posterior
-        from ..inverse._posterior_output import corner_plot, save_netcdf
+        from ..inverse._posterior_output import corner_plot, predictive_plot, save_netcdf
 
         pr = sample_posterior(forward, measured, free=post_free, fixed=post_fixed, walkers=args.walkers, max_steps=args.max_steps,
                               min_steps=min(500, args.max_steps), check_every=min(250, args.max_steps), min_ess=args.min_ess, max_rhat=args.max_rhat, init=fr, seed=args.seed,
@@ -183,6 +186,9 @@ def compute(args) -> dict:
 
             save_netcdf(pr.idata, Path(args.out) / "posterior.nc")
             corner_plot(pr, path=Path(args.out) / "corner.png", title=f"{label}: posterior ({args.forward})")
+            predictive_plot(STANDARD_ANGLES, measured, fit=fr.L_star_fit, band=(check["L_star_q05"], check["L_star_q95"]),
+                            path=Path(args.out) / "predictive.png",
+                            title=f"{label}: posterior predictive ({args.forward}), p = {check['p_value']:.2g}")
     out["seconds"] = time.perf_counter() - t0
     return out
 
@@ -213,6 +219,14 @@ def _posterior_setup(args, forward, measured, lsq_free, fixed):
     return post_free, post_fixed, inputs
 
 
+def resolve_inputs(args) -> str:
+    """--inputs as given, else its default: "rq" (the published inputs as data) for the posterior of a reference
+    sample (`--sample`, or no data given: silver1), "none" for --measured values, --data files and plain fits."""
+    if args.inputs is not None:
+        return args.inputs
+    return "rq" if args.posterior and args.measured is None and getattr(args, "data", None) is None else "none"
+
+
 def check_run_sizes(args) -> None:
     """--walkers, for one panel and for --data alike (before any work; the other sizes are in `RANGES`)."""
     if args.posterior and (args.walkers < 2 or args.walkers % 2 or args.walkers > MAX_WALKERS):  # the full check (≥ 2 × sampled parameters) follows
@@ -233,7 +247,7 @@ def run_batch(args) -> int:
 
     from ..inverse._panels import fit_panels
 
-    if args.inputs != "none" or args.chain:
+    if args.inputs not in (None, "none") or args.chain:
         raise ValueError("--inputs and --chain apply to one panel: with --data, give known inputs as columns (sigma, sigma_sd, …)")
     check_run_sizes(args)
     fixed = parse_fixed(args.fix)

@@ -18,7 +18,7 @@ from ._measured_inputs import MeasuredInputs, posterior_predictive_check
 from ._panels import fit_panel, fit_panels, read_panels, read_results
 from ._parameters import PARAMETERS, Parameter, ParameterSpec, make_spec
 from ._posterior import LogPosterior, PosteriorResult, sample_posterior
-from ._posterior_output import corner_plot, save_netcdf
+from ._posterior_output import corner_plot, predictive_plot, save_netcdf
 from ._profilometer import (
     SIGMA_DEFINITIONS,
     Profilometer,
@@ -47,6 +47,7 @@ __all__ = [
     "wide_tracer_emulator",
     "MeasuredInputs",
     "posterior_predictive_check",
+    "predictive_plot",
     "SIGMA_DEFINITIONS",
     "Profilometer",
     "ReadingModel",

@@ -298,31 +298,18 @@ def figure_name(panel_id: str) -> str:
 
 def panel_figure(panel: dict, row: dict, path) -> None:
     """Measured L* (with ±2 SD bars) against the least-squares curve and, with a posterior, its 90 %
-    posterior-predictive band, per aspecular angle; written atomically as PNG."""
-    import matplotlib
-
-    matplotlib.use("Agg")
+    posterior-predictive band, per aspecular angle; written atomically as PNG (`predictive_plot`)."""
     import matplotlib.pyplot as plt
 
-    from .._io import atomic_savefig
+    from ._posterior_output import predictive_plot
 
     fitted = [x for x in PANEL_ANGLES if row.get(f"L{x}_fit") not in (None, "")]  # the angles of the panel's model
-    a = np.asarray(fitted, float)
-    fig, ax = plt.subplots(figsize=(4.6, 3.4))
+    band = None
     if f"L{fitted[0]}_q05" in row:
-        lo = [float(row[f"L{x}_q05"]) for x in fitted]
-        hi = [float(row[f"L{x}_q95"]) for x in fitted]
-        ax.fill_between(a, lo, hi, color="C0", alpha=0.25, label="posterior predictive 90 %")
-    ax.plot(a, [float(row[f"L{x}_fit"]) for x in fitted], "-", color="C0", label="least squares")
-    L = np.asarray(panel["L_star"], float)
-    ax.errorbar(np.asarray(PANEL_ANGLES, float), L, yerr=2 * np.asarray(panel["sd"], float), fmt="o", color="k", ms=4, capsize=2,
-                label="measured ± 2 SD")
-    ax.set_xlabel("aspecular angle [°]")
-    ax.set_ylabel("L*")
-    ax.set_title(f"{row['id']}: χ² {float(row['chi2']):.3g} for {int(row['dof'])} dof", fontsize=9)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    atomic_savefig(fig, path)
+        band = ([float(row[f"L{x}_q05"]) for x in fitted], [float(row[f"L{x}_q95"]) for x in fitted])
+    fig = predictive_plot(PANEL_ANGLES, panel["L_star"], measured_sd=panel["sd"], model_angles=fitted,
+                          fit=[float(row[f"L{x}_fit"]) for x in fitted], band=band, path=path,
+                          title=f"{row['id']}: χ² {float(row['chi2']):.3g} for {int(row['dof'])} dof")
     plt.close(fig)
 
 
