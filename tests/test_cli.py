@@ -279,10 +279,10 @@ def test_demo_reads_each_panels_posterior_summary_from_the_cache(tmp_path, monke
         return {"measured": list(s.L_star), "estimates": {}, "L_star_q50": np.asarray(s.L_star) + seed, "predictive_p_value": 0.5, "predictive_p_value_se": 0.01,
                 "verdict": "agree", "at_edge": {}, "converged": {label: True for label in runs}, "seconds": 1.0}
 
-    monkeypatch.setattr(_demo, "_panel_summary", stand_in)
-    first = _demo.inference(seed=0, progress=False)
-    again = _demo.inference(seed=0, progress=False)
-    other = _demo.inference(seed=1, progress=False)
+    monkeypatch.setattr(_demo, "_panel_summary", stand_in)  # in this process: one worker (spawned workers would not see it)
+    first = _demo.inference(seed=0, progress=False, workers=1)
+    again = _demo.inference(seed=0, progress=False, workers=1)
+    other = _demo.inference(seed=1, progress=False, workers=1)
     assert calls == [("silver1", 0), ("silver2", 0), ("silver1", 1), ("silver2", 1)]
     for name in ("silver1", "silver2"):
         assert not first["panels"][name]["cached"] and again["panels"][name]["cached"] and not other["panels"][name]["cached"]

@@ -63,36 +63,74 @@ def _panel_summary(forward, reading, s, runs, seed: int) -> dict:
     }
 
 
-def inference(*, seed: int = 0, progress: bool = True) -> dict:
+#: The two runs of each panel: δ free (the estimates), then δ = 0 (the verdict).
+RUNS = ("L* and inputs", "L* and inputs, no discrepancy")
+PANELS = ("silver1", "silver2")
+
+
+def _models(progress: bool):
+    """The shipped tracer emulator (the four microstructure parameters free) and the roughness reading model."""
+    from ..inverse._profilometer import build_reading_model
+    from ..inverse._registry import make_forward
+
+    forward = make_forward("tracer-emulator-wide", ("shape", "scale", "sigma", "tau"), {}, progress=progress)
+    return forward, build_reading_model(progress=progress)
+
+
+def _sample_panel(name: str, seed: int) -> dict:
+    """One panel's summary in a process of its own (spawned, so float64 and the compilation cache are set as `main` sets them)."""
+    import jax
+
+    from .._cache import enable_compilation_cache
+    from .._samples import load_sample
+
+    jax.config.update("jax_enable_x64", True)
+    enable_compilation_cache()
+    forward, reading = _models(progress=False)
+    return _panel_summary(forward, reading, load_sample(name), RUNS, seed)
+
+
+def inference(*, seed: int = 0, progress: bool = True, workers: int = 2) -> dict:
     """Both panels' posteriors with the published inputs as data (δ free, then δ = 0) and verdicts
-    (each panel's summary from the cache when one matches; "cached" says which)."""
+    (each panel's summary from the cache when one matches; "cached" says which). With `workers` > 1
+    the panels missing from the cache are sampled side by side, one process each (the same seed, so the
+    same numbers as one after the other)."""
     import hashlib
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
 
     import jax
 
     from .. import __version__
-    from .._cache import cached_json
+    from .._cache import cache_path, cached_json
     from .._pipeline import _source_digest
     from .._samples import load_sample
     from ..inverse._chain import MAX_RHAT, MAX_STEPS
-    from ..inverse._profilometer import build_reading_model
-    from ..inverse._registry import make_forward
     from ..inverse._verdict import DISAGREE_P
 
-    forward = make_forward("tracer-emulator-wide", ("shape", "scale", "sigma", "tau"), {}, progress=progress)
-    reading = build_reading_model(progress=progress)
+    forward, reading = _models(progress)
     digest = hashlib.sha256()
     for leaf in jax.tree_util.tree_leaves(reading):
         digest.update(np.ascontiguousarray(np.asarray(leaf, float)).tobytes())
     code = _source_digest(*_POSTERIOR_CODE)  # an edit to the posterior's code invalidates the summaries
     out = {"forward": "tracer-emulator-wide", "disagree_below_p": DISAGREE_P, "panels": {}}
-    runs = ("L* and inputs", "L* and inputs, no discrepancy")
-    for name in ("silver1", "silver2"):
-        s = load_sample(name)
-        inputs = {"version": SUMMARY_VERSION, "paintjax": __version__, "code": code, "forward": forward.fingerprint(), "reading": digest.hexdigest(),
-                  "sample": repr(s), "runs": list(runs), "seed": int(seed), "max_rhat": MAX_RHAT, "max_steps": MAX_STEPS, "disagree_p": DISAGREE_P}
-        summary, hit = cached_json("demo-panel", inputs, lambda: _panel_summary(forward, reading, s, runs, seed))
-        out["panels"][s.name] = summary | {"cached": bool(hit)}
+    samples = {name: load_sample(name) for name in PANELS}
+    keys = {name: {"version": SUMMARY_VERSION, "paintjax": __version__, "code": code, "forward": forward.fingerprint(), "reading": digest.hexdigest(),
+                   "sample": repr(s), "runs": list(RUNS), "seed": int(seed), "max_rhat": MAX_RHAT, "max_steps": MAX_STEPS, "disagree_p": DISAGREE_P}
+            for name, s in samples.items()}
+    todo = [name for name in PANELS if not cache_path("demo-panel", keys[name]).exists()]
+    pool = ProcessPoolExecutor(min(workers, len(todo)), mp_context=get_context("spawn")) if workers > 1 and len(todo) > 1 else None
+    try:
+        futures = {name: pool.submit(_sample_panel, name, seed) for name in todo} if pool else {}
+        if futures and progress:
+            print(f"[demo] sampling {len(futures)} panels' posteriors side by side, one process each …", flush=True)
+        for name, s in samples.items():
+            build = (lambda f=futures[name]: f.result()) if name in futures else (lambda s=s: _panel_summary(forward, reading, s, RUNS, seed))
+            summary, hit = cached_json("demo-panel", keys[name], build)
+            out["panels"][s.name] = summary | {"cached": bool(hit)}
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
     return out
 
 
