@@ -224,7 +224,7 @@ def resolve_inputs(args) -> str:
     sample (`--sample`, or no data given: silver1), "none" for --measured values, --data files and plain fits."""
     if args.inputs is not None:
         return args.inputs
-    return "rq" if args.posterior and args.measured is None and getattr(args, "data", None) is None else "none"
+    return "rq" if args.posterior and args.measured is None and args.data is None else "none"
 
 
 def check_run_sizes(args) -> None:

@@ -299,6 +299,9 @@ def figure_name(panel_id: str) -> str:
 def panel_figure(panel: dict, row: dict, path) -> None:
     """Measured L* (with ±2 SD bars) against the least-squares curve and, with a posterior, its 90 %
     posterior-predictive band, per aspecular angle; written atomically as PNG (`predictive_plot`)."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # a Dask worker has no display
     import matplotlib.pyplot as plt
 
     from ._posterior_output import predictive_plot

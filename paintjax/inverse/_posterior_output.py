@@ -67,9 +67,6 @@ def predictive_plot(angles: Sequence[float], measured: Sequence[float], *, measu
     Returns:
         The matplotlib figure.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     import numpy as np
 
