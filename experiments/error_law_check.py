@@ -134,6 +134,16 @@ def check_independent(draws: int, seed: int, folds: int) -> int:
     return 0
 
 
+def load_study(study: Path) -> dict:
+    """The summary of a finished tracer-emulator-wide calibration study over `NAMES` (SystemExit naming the folder if not)."""
+    if not (study / "summary.json").is_file():
+        raise SystemExit(f"--study {study}: no summary.json there (a finished experiments/coverage.py study folder)")
+    summary = json.loads((study / "summary.json").read_text())
+    if summary.get("forward") != "tracer-emulator-wide" or tuple(summary.get("free", ())) != NAMES:
+        raise SystemExit(f"{study}: not a tracer-emulator-wide study over {NAMES}")
+    return summary
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--study", default=str(STUDY), help="folder of a tracer-emulator-wide calibration study (its summary.json)")
@@ -149,11 +159,7 @@ def main(argv=None) -> int:
     if a.independent:
         return check_independent(a.draws, a.seed, a.folds)
     study = Path(a.study)
-    if not (study / "summary.json").is_file():
-        raise SystemExit(f"--study {study}: no summary.json there (a finished experiments/coverage.py study folder)")
-    summary = json.loads((study / "summary.json").read_text())
-    if summary.get("forward") != "tracer-emulator-wide" or tuple(summary.get("free", ())) != NAMES:
-        raise SystemExit(f"{study}: not a tracer-emulator-wide study over {NAMES}")
+    summary = load_study(study)
     rows = summary["rows"]
     em = make_forward("tracer-emulator-wide", NAMES)
     theta = np.array([[r["truth"][n] for n in NAMES] for r in rows])

@@ -26,15 +26,14 @@ Run: python experiments/posterior_reproducibility.py --study experiments/output/
 from __future__ import annotations
 
 import argparse
-import json
 import multiprocessing as mp
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from error_law_check import NAMES, load_study  # the parameters and the study folder's check, shared with that experiment
 
-NAMES = ("shape", "scale", "sigma", "tau")
 SEED_STRIDE = 10007  # repeat k of panel i: least-squares starts and walkers seeded study_seed + i + SEED_STRIDE · (k + 1)
 _FORWARD = {}
 
@@ -120,11 +119,7 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, default=2, help="processes running posteriors side by side")
     a = ap.parse_args(argv)
     study = Path(a.study)
-    if not (study / "summary.json").is_file():
-        raise SystemExit(f"--study {study}: no summary.json there (a finished experiments/coverage.py study folder)")
-    summary = json.loads((study / "summary.json").read_text())
-    if summary.get("forward") != "tracer-emulator-wide" or tuple(summary.get("free", ())) != NAMES:
-        raise SystemExit(f"{study}: not a tracer-emulator-wide study over {NAMES}")
+    summary = load_study(study)
     if a.repeats < 2:
         raise SystemExit(f"--repeats must be at least 2, got {a.repeats}")
     if not 1 <= a.workers <= 16:
