@@ -148,19 +148,28 @@ def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, s
     return row
 
 
+def fit_and_sample(forward_name: str, options: dict, y, free, held: dict, starts: int, steps: int, walkers: int, seed: int,
+                   converge: bool):
+    """(least-squares fit, posterior) of one dataset as the study makes them: `starts` random starts, then emcee
+    started at the fit (δ fixed to 0), both seeded `seed`; the parameters not `free` held at `held`."""
+    forward, _, _, extra_fixed = _models(forward_name, options)
+    fr = fit_least_squares(forward, y, free=free, fixed={**extra_fixed, **held}, n_starts=starts, seed=seed)
+    # fixed-length chains of `steps`, or (converge) chains run to the package's stopping rule with at most `steps`
+    rule = dict(min_steps=500, check_every=250) if converge else dict(min_steps=steps, check_every=steps, min_ess=0)
+    post = sample_posterior(forward, y, free=free, fixed={**extra_fixed, "discrepancy": 0.0, **held}, walkers=walkers, max_steps=steps,
+                            **rule, init=fr, seed=seed, progress=False, inference_data=False)
+    return fr, post
+
+
 def _analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,
              levels, converge: bool) -> dict:
     forward, _, _, extra_fixed = _models(forward_name, options)
     truth = dict(zip(ALL, map(float, t)))
     held = {k: v for k, v in truth.items() if k not in free}
-    fr = fit_least_squares(forward, y, free=free, fixed={**extra_fixed, **held}, n_starts=starts, seed=seed + i)
+    fr, post = fit_and_sample(forward_name, options, y, free, held, starts, steps, walkers, seed + i, converge)
     best = fr.chi2
     same = sum(np.isfinite(s["chi2"]) and s["chi2"] <= best + 1e-3 * max(1.0, best) for s in fr.starts)
     z = {n: (fr.values[n] - truth[n]) / fr.stderr[n] if fr.stderr[n] > 0 else np.nan for n in free}
-    # fixed-length chains of `steps`, or (converge) chains run to the package's stopping rule with at most `steps`
-    rule = dict(min_steps=500, check_every=250) if converge else dict(min_steps=steps, check_every=steps, min_ess=0)
-    post = sample_posterior(forward, y, free=free, fixed={**extra_fixed, "discrepancy": 0.0, **held}, walkers=walkers, max_steps=steps,
-                            **rule, init=fr, seed=seed + i, progress=False, inference_data=False)
     row = {"truth": truth, "L_star_clean": np.asarray(clean["clean"]).tolist(), "L_star_clean_se": np.asarray(clean["clean_se"]).tolist(),
            "L_star": np.asarray(y).tolist(), "lsq": fr.values, "lsq_stderr": fr.stderr,
            "lsq_chi2": best, "lsq_success": fr.success, "starts_at_best": int(same), "lsq_z": z,

@@ -32,34 +32,19 @@ import time
 from pathlib import Path
 
 import numpy as np
+from coverage import fit_and_sample  # the study's own fit and posterior of one dataset
 from error_law_check import NAMES, load_study  # the parameters and the study folder's check, shared with that experiment
 
 SEED_STRIDE = 10007  # repeat k of panel i: least-squares starts and walkers seeded study_seed + i + SEED_STRIDE · (k + 1)
-_FORWARD = {}
-
-
-def _forward():
-    if "em" not in _FORWARD:
-        import jax
-
-        jax.config.update("jax_enable_x64", True)
-        from paintjax.inverse import make_forward
-
-        _FORWARD["em"] = make_forward("tracer-emulator-wide", NAMES)
-    return _FORWARD["em"]
 
 
 def one_posterior(task: dict) -> dict:
     """The least-squares fit and one posterior of one panel (a task), as the study made them, with the task's seed
     (the fit's random starts too: where on a flat ridge of good fits the walkers start is part of what varies)."""
-    from paintjax import fit_least_squares, sample_posterior
-
-    em = _forward()
     y, truth = np.asarray(task["L_star"]), task["truth"]
     t0 = time.perf_counter()
-    fr = fit_least_squares(em, y, free=NAMES, fixed={}, n_starts=task["starts"], seed=task["seed"])
-    post = sample_posterior(em, y, free=NAMES, fixed={"discrepancy": 0.0}, walkers=task["walkers"], max_steps=task["steps"],
-                            min_steps=500, check_every=250, init=fr, seed=task["seed"], progress=False, inference_data=False)
+    fr, post = fit_and_sample("tracer-emulator-wide", {}, y, NAMES, {}, task["starts"], task["steps"], task["walkers"], task["seed"],
+                              task["converge"])
     out = {"i": task["i"], "repeat": task["repeat"], "seed": task["seed"], "start": fr.values, "start_chi2": fr.chi2,
            "steps": post.steps, "n_eff": post.n_eff,
            "converged": post.converged, "rhat_max": max(post.rhat.values()), "seconds": time.perf_counter() - t0}
@@ -129,7 +114,7 @@ def main(argv=None) -> int:
     walkers = int(a.walkers or summary["walkers"])
     tasks = [{"i": i, "repeat": k, "L_star": rows[i]["L_star"], "truth": rows[i]["truth"], "starts": summary["lsq_starts"],
               "seed": summary["seed"] + i + SEED_STRIDE * (k + 1), "walkers": walkers,
-              "steps": summary["steps"]} for i in panels for k in range(a.repeats)]
+              "steps": summary["steps"], "converge": summary["converge"]} for i in panels for k in range(a.repeats)]
     t0 = time.perf_counter()
     path = study / f"reproducibility_w{walkers}.json"
     head = {"study": study.name, "panels": panels, "repeats": a.repeats, "walkers": walkers, "study_walkers": summary["walkers"],
