@@ -124,10 +124,11 @@ class _NotDone(Exception):
 
 
 def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,
-            levels, converge: bool = False, parts=None, interim: bool = False) -> dict | None:
+            levels, converge: bool = False, parts=None, interim: bool = False, sampler: dict | None = None) -> dict | None:
     """Least squares and the posterior of one synthetic dataset (a task): its row of the summary, stored in `parts`
     (default `$PAINTJAX_CACHE`) under everything it depends on, so an interrupted study resumes at the first dataset not done.
-    With `interim`, only a stored row is read (None when there is none)."""
+    With `interim`, only a stored row is read (None when there is none). `sampler`: `sample_posterior`'s start and
+    moves (`SAMPLER` by default)."""
     import paintjax
     from paintjax.inverse import MAX_RHAT, MAX_STEPS
 
@@ -135,11 +136,11 @@ def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, s
     inputs = {"version": ROW_VERSION, "paintjax": paintjax.__version__, "forward": forward.fingerprint(), "i": int(i),
               "truth": np.asarray(t, float), "clean": np.asarray(clean["clean"], float), "y": np.asarray(y, float), "free": list(free),
               "starts": int(starts), "steps": int(steps), "walkers": int(walkers), "seed": int(seed), "levels": [float(lv) for lv in levels],
-              "converge": bool(converge), "stopping_rule": [MAX_RHAT, MAX_STEPS]}
+              "converge": bool(converge), "stopping_rule": [MAX_RHAT, MAX_STEPS], "sampler": sampler_settings(sampler)}
     def build():
         if interim:
             raise _NotDone
-        return _analyse(forward_name, options, i, t, clean, y, free, starts, steps, walkers, seed, levels, converge)
+        return _analyse(forward_name, options, i, t, clean, y, free, starts, steps, walkers, seed, levels, converge, sampler)
 
     try:
         row, _ = cached_json("coverage-row", inputs, build, folder=parts)
@@ -148,25 +149,40 @@ def analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, s
     return row
 
 
+#: The sampler's start and moves (`sample_posterior`) unless a study names others.
+SAMPLER = {"start": "dispersed", "moves": "stretch"}
+#: What studies that do not record their sampler used.
+SAMPLER_BEFORE = {"start": "ball", "moves": "stretch"}
+
+
+def sampler_settings(sampler: dict | None) -> dict:
+    """`SAMPLER` with `sampler`'s entries (checked: only start and moves)."""
+    unknown = sorted(set(sampler or {}) - set(SAMPLER))
+    if unknown:
+        raise ValueError(f"sampler settings {unknown} are not known (known: {', '.join(SAMPLER)})")
+    return SAMPLER | dict(sampler or {})
+
+
 def fit_and_sample(forward_name: str, options: dict, y, free, held: dict, starts: int, steps: int, walkers: int, seed: int,
-                   converge: bool):
+                   converge: bool, sampler: dict | None = None):
     """(least-squares fit, posterior) of one dataset as the study makes them: `starts` random starts, then emcee
-    started at the fit (δ fixed to 0), both seeded `seed`; the parameters not `free` held at `held`."""
+    from the fit's posterior mode (δ fixed to 0; walkers started and moved as `sampler` says), both seeded `seed`;
+    the parameters not `free` held at `held`."""
     forward, _, _, extra_fixed = _models(forward_name, options)
     fr = fit_least_squares(forward, y, free=free, fixed={**extra_fixed, **held}, n_starts=starts, seed=seed)
     # fixed-length chains of `steps`, or (converge) chains run to the package's stopping rule with at most `steps`
     rule = dict(min_steps=500, check_every=250) if converge else dict(min_steps=steps, check_every=steps, min_ess=0)
     post = sample_posterior(forward, y, free=free, fixed={**extra_fixed, "discrepancy": 0.0, **held}, walkers=walkers, max_steps=steps,
-                            **rule, init=fr, seed=seed, progress=False, inference_data=False)
+                            **rule, init=fr, seed=seed, progress=False, inference_data=False, **sampler_settings(sampler))
     return fr, post
 
 
 def _analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, starts: int, steps: int, walkers: int, seed: int,
-             levels, converge: bool) -> dict:
+             levels, converge: bool, sampler: dict | None = None) -> dict:
     forward, _, _, extra_fixed = _models(forward_name, options)
     truth = dict(zip(ALL, map(float, t)))
     held = {k: v for k, v in truth.items() if k not in free}
-    fr, post = fit_and_sample(forward_name, options, y, free, held, starts, steps, walkers, seed + i, converge)
+    fr, post = fit_and_sample(forward_name, options, y, free, held, starts, steps, walkers, seed + i, converge, sampler)
     best = fr.chi2
     same = sum(np.isfinite(s["chi2"]) and s["chi2"] <= best + 1e-3 * max(1.0, best) for s in fr.starts)
     z = {n: (fr.values[n] - truth[n]) / fr.stderr[n] if fr.stderr[n] > 0 else np.nan for n in free}
@@ -192,7 +208,7 @@ def _analyse(forward_name: str, options: dict, i: int, t, clean: dict, y, free, 
 
 def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Path, free=("shape", "scale"),
         forward_name: str = "analytic", forward_options: dict | None = None, levels=(0.5, 0.9), client=None, converge: bool = False,
-        interim: bool = False) -> dict:
+        interim: bool = False, sampler: dict | None = None) -> dict:
     """The study; with a Dask `client` the tracer runs and the datasets' fits and posteriors are tasks on
     its workers (the same numbers as the serial loop: draws, noise and seeds do not depend on the order).
     With `interim`, no fit or posterior runs: the rows already stored in `out`/parts are tabulated into
@@ -259,11 +275,12 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
 
     rows = tasks(analyse, [forward_name] * n, [options] * n, [i for i, _ in kept], [truths[i] for i, _ in kept], [c for _, c in kept],
                  noisy, [FREE] * n, [starts] * n, [steps] * n, [walkers] * n, [seed] * n, [levels] * n, [converge] * n, [parts] * n,
-                 [interim] * n, report=None if interim else report)
+                 [interim] * n, [sampler_settings(sampler)] * n, report=None if interim else report)
     if interim:
         done = [r for r in rows if r is not None]
         coverage, calibration = coverage_tables(done, FREE, levels) if done else ({}, {})
         report_ = {"interim": True, "forward": forward_name, "free": list(FREE), "walkers": walkers, "steps": steps, "converge": converge,
+                   "sampler": sampler_settings(sampler),
                    "seed": seed, "datasets": datasets, "datasets_done": len(done), "coverage": coverage, "calibration": calibration,
                    "steps_per_dataset": [r["steps"] for r in done], "converged": int(sum(bool(r["converged"]) for r in done)),
                    "rhat_max": [r["rhat_max"] for r in done], "rows": done}
@@ -284,7 +301,8 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
         "forward": forward_name,
         "prior_box": {n: [float(spec.lower[j]), float(spec.upper[j])] for j, n in enumerate(spec.names)},
         "free": list(FREE), "held_at_truth": [k for k in ALL if k not in FREE],
-        "datasets": datasets, "walkers": walkers, "steps": steps, "converge": converge, "lsq_starts": starts, "seed": seed,
+        "datasets": datasets, "walkers": walkers, "steps": steps, "converge": converge, "sampler": sampler_settings(sampler),
+        "lsq_starts": starts, "seed": seed,
         "coverage": coverage,
         # the binomial ranges are per cell (95 %); with 2 levels × len(FREE) cells, one cell outside
         # by chance is likely (8 independent cells: 1 − 0.95⁸ ≈ 34 %), so the PIT uniformity test
@@ -357,6 +375,7 @@ def combine(folders, out: Path) -> dict:
     for part, folder in zip(parts[1:], folders[1:]):
         differ = [k for k in keys if part[k] != parts[0][k]] + (["levels"] if set(part["coverage"]) != set(parts[0]["coverage"]) else [])
         differ += ["converge"] if part.get("converge", False) != parts[0].get("converge", False) else []
+        differ += ["sampler"] if part.get("sampler", SAMPLER_BEFORE) != parts[0].get("sampler", SAMPLER_BEFORE) else []
         if differ:
             raise SystemExit(f"{folder} is not the same study as {folders[0]}: {', '.join(differ)} differ")
     seeds = [p["seed"] for p in parts]
@@ -366,7 +385,7 @@ def combine(folders, out: Path) -> dict:
     rows = [r for p in parts for r in p["rows"]]
     levels = sorted(float(lv) for lv in parts[0]["coverage"])
     coverage, calibration = coverage_tables(rows, FREE, levels)
-    summary = {k: parts[0][k] for k in keys} | {"converge": parts[0].get("converge", False),
+    summary = {k: parts[0][k] for k in keys} | {"converge": parts[0].get("converge", False), "sampler": parts[0].get("sampler", SAMPLER_BEFORE),
         "pooled_from": [{"folder": str(f), "seed": p["seed"], "datasets": p["datasets"]} for f, p in zip(folders, parts)],
         "datasets": len(rows), "coverage": coverage, "calibration": calibration,
         "skipped_prior_draws": [s for p in parts for s in p["skipped_prior_draws"]], "rows": rows}
@@ -437,6 +456,9 @@ def main(argv=None):
     ap.add_argument("--converge", action="store_true", help="run each posterior to the package's stopping rule (R-hat ≤ 1.01, "
                     "bulk ESS ≥ 1000) with at most --steps steps, instead of chains of exactly --steps steps")
     ap.add_argument("--starts", type=int, default=4)
+    ap.add_argument("--start", default=SAMPLER["start"], choices=("dispersed", "ball"), help="where the walkers start: dispersed over "
+                    "the posterior about its mode (default) or in a small ball about the mode (the studies before the dispersed start)")
+    ap.add_argument("--moves", default=SAMPLER["moves"], choices=("stretch", "de"), help="emcee's proposal (default stretch)")
     ap.add_argument("--seed", type=int, default=2026)
     ap.add_argument("--free", help="parameters inferred (others held at their true values); default shape,scale "
                                    "(analytic) or shape,scale,sigma,tau (tracer-emulator)")
@@ -475,7 +497,7 @@ def main(argv=None):
                                                                                dashboard_address=":0"))
     try:
         s = run(a.datasets, a.steps, a.walkers, a.starts, a.seed, out, tuple(free.split(",")), a.forward, levels=levels, client=client,
-                converge=a.converge, interim=a.interim)
+                converge=a.converge, interim=a.interim, sampler={"start": a.start, "moves": a.moves})
     finally:
         if client is not None:
             cluster = getattr(client, "cluster", None)

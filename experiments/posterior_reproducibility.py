@@ -15,12 +15,14 @@ study), and reports per parameter:
 * how often the repeats and the study's run disagree on whether the truth is inside the central 68 % interval;
 * the spread of the posterior median in units of the posterior SD.
 
-With `--walkers` other than the study's, the same panels under another ensemble size.
+With `--walkers`, `--start` or `--moves` other than the study's, the same panels under another sampler; the study's
+own run then does not count among the runs compared.
 
-Writes <study>/reproducibility_w<walkers>.json (atomic; rewritten as each posterior finishes, the summary at the end).
+Writes <study>/reproducibility_w<walkers>_<start>_<moves>.json (atomic; rewritten as each posterior finishes, the summary
+at the end).
 
 Run: python experiments/posterior_reproducibility.py --study experiments/output/coverage_tracer_wide_seed2032
-         [--panels 0-9] [--repeats 3] [--walkers 16] [--workers 2]
+         [--panels 0-9] [--repeats 3] [--walkers 16] [--start dispersed|ball] [--moves stretch|de] [--workers 2]
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from coverage import fit_and_sample  # the study's own fit and posterior of one dataset
+from coverage import SAMPLER, SAMPLER_BEFORE, fit_and_sample, sampler_settings  # the study's own fit and posterior of one dataset
 from error_law_check import NAMES, load_study  # the parameters and the study folder's check, shared with that experiment
 
 SEED_STRIDE = 10007  # repeat k of panel i: least-squares starts and walkers seeded study_seed + i + SEED_STRIDE · (k + 1)
@@ -44,7 +46,7 @@ def one_posterior(task: dict) -> dict:
     y, truth = np.asarray(task["L_star"]), task["truth"]
     t0 = time.perf_counter()
     fr, post = fit_and_sample("tracer-emulator-wide", {}, y, NAMES, {}, task["starts"], task["steps"], task["walkers"], task["seed"],
-                              task["converge"])
+                              task["converge"], task["sampler"])
     out = {"i": task["i"], "repeat": task["repeat"], "seed": task["seed"], "start": fr.values, "start_chi2": fr.chi2,
            "steps": post.steps, "n_eff": post.n_eff,
            "converged": post.converged, "rhat_max": max(post.rhat.values()), "seconds": time.perf_counter() - t0}
@@ -58,21 +60,23 @@ def one_posterior(task: dict) -> dict:
     return out
 
 
-def summarise(runs: list[dict], rows: list[dict], panels: list[int]) -> dict:
-    """Per parameter: the PIT's spread over the repeats and the study's run against the spread n_eff independent draws give, the
-    panels whose repeats disagree on the 68 % interval, the median's spread in posterior SDs."""
+def summarise(runs: list[dict], rows: list[dict], panels: list[int], with_study: bool = True) -> dict:
+    """Per parameter: the PIT's spread over the repeats (and the study's run, `with_study`: when it used the same sampler)
+    against the spread n_eff independent draws give, the panels whose runs disagree on the 68 % interval, the median's
+    spread in posterior SDs."""
     out = {}
     for n in NAMES:
         sd_pit, sd_ideal, sd_median, disagree = [], [], [], 0
         for i in panels:
             mine = [r for r in runs if r["i"] == i]
             # the study's own run is one more independent posterior of the panel (its seed differs from the repeats')
-            pit = np.array([r[n]["pit"] for r in mine] + [rows[i]["pit"][n]])
-            n_eff = np.array([r["n_eff"] for r in mine] + [rows[i]["n_eff"]])
+            study = [rows[i]] if with_study else []
+            pit = np.array([r[n]["pit"] for r in mine] + [r["pit"][n] for r in study])
+            n_eff = np.array([r["n_eff"] for r in mine] + [r["n_eff"] for r in study])
             sd_pit.append(np.std(pit, ddof=1))
             sd_ideal.append(np.sqrt(np.mean(pit * (1 - pit) / n_eff)))
             sd_median.append(np.std([r[n]["median"] for r in mine], ddof=1) / np.mean([r[n]["sd"] for r in mine]))
-            inside = {r[n]["inside68"] for r in mine} | {bool(rows[i]["inside"][f"{n}@0.68"])}
+            inside = {r[n]["inside68"] for r in mine} | {bool(r["inside"][f"{n}@0.68"]) for r in study}
             disagree += len(inside) > 1
         out[n] = {"pit_sd_over_repeats": float(np.sqrt(np.mean(np.square(sd_pit)))),
                   "pit_sd_from_n_eff": float(np.sqrt(np.mean(np.square(sd_ideal)))),
@@ -102,6 +106,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="independent posteriors per panel (≥ 2)")
     ap.add_argument("--walkers", type=int, default=None, help="ensemble size (default: the study's)")
     ap.add_argument("--workers", type=int, default=2, help="processes running posteriors side by side")
+    ap.add_argument("--start", default=SAMPLER["start"], choices=("dispersed", "ball"), help="where the walkers start (default dispersed)")
+    ap.add_argument("--moves", default=SAMPLER["moves"], choices=("stretch", "de"), help="emcee's proposal (default stretch)")
     a = ap.parse_args(argv)
     study = Path(a.study)
     summary = load_study(study)
@@ -112,12 +118,16 @@ def main(argv=None) -> int:
     rows = summary["rows"]
     panels = parse_panels(a.panels, len(rows))
     walkers = int(a.walkers or summary["walkers"])
+    sampler = sampler_settings({"start": a.start, "moves": a.moves})
+    # the study's own posterior is one more independent run only if it was made with the same sampler
+    with_study = walkers == summary["walkers"] and sampler == summary.get("sampler", SAMPLER_BEFORE)
     tasks = [{"i": i, "repeat": k, "L_star": rows[i]["L_star"], "truth": rows[i]["truth"], "starts": summary["lsq_starts"],
               "seed": summary["seed"] + i + SEED_STRIDE * (k + 1), "walkers": walkers,
-              "steps": summary["steps"], "converge": summary["converge"]} for i in panels for k in range(a.repeats)]
+              "steps": summary["steps"], "converge": summary["converge"], "sampler": sampler} for i in panels for k in range(a.repeats)]
     t0 = time.perf_counter()
-    path = study / f"reproducibility_w{walkers}.json"
+    path = study / f"reproducibility_w{walkers}_{sampler['start']}_{sampler['moves']}.json"
     head = {"study": study.name, "panels": panels, "repeats": a.repeats, "walkers": walkers, "study_walkers": summary["walkers"],
+            "sampler": sampler, "study_sampler": summary.get("sampler", SAMPLER_BEFORE), "study_run_counted": with_study,
             "steps": summary["steps"], "study_pit": {str(i): rows[i]["pit"] for i in panels}}
     runs = []
     with mp.get_context("spawn").Pool(a.workers) as pool:
@@ -125,10 +135,11 @@ def main(argv=None) -> int:
             runs.append(run)  # the runs so far, after each one (an interrupted experiment keeps them)
             atomic_write_json(path, head | {"done": len(runs), "of": len(tasks), "seconds": time.perf_counter() - t0, "runs": runs})
     runs.sort(key=lambda r: (r["i"], r["repeat"]))
-    table = summarise(runs, rows, panels)
+    table = summarise(runs, rows, panels, with_study)
     out = head | {"done": len(runs), "of": len(tasks), "seconds": time.perf_counter() - t0, "summary": table, "runs": runs}
     atomic_write_json(path, out)
-    print(f"{len(panels)} panels × {a.repeats} independent posteriors, {walkers} walkers ({out['seconds']:.0f} s):")
+    print(f"{len(panels)} panels × {a.repeats} independent posteriors, {walkers} walkers, start {sampler['start']}, moves "
+          f"{sampler['moves']}{' and the study' + chr(39) + 's own' if with_study else ''} ({out['seconds']:.0f} s):")
     print(f"{'':6s} {'PIT SD (repeats)':>17s} {'PIT SD (n_eff)':>15s} {'median SD / post. SD':>21s} {'disagree @68':>13s}")
     for n, v in table.items():
         print(f"{n:6s} {v['pit_sd_over_repeats']:17.3f} {v['pit_sd_from_n_eff']:15.3f} {v['median_sd_in_posterior_sd']:21.2f} "

@@ -179,19 +179,19 @@ def test_default_start_is_the_mode_of_the_posterior_with_its_inputs():
     near 5 and far above the fit's log posterior."""
     from paintjax.inverse._fit import fit_least_squares
     from paintjax.inverse._measured_inputs import KnownInputs
-    from paintjax.inverse._posterior import _initial_ball, _posterior_mode, _start_point
+    from paintjax.inverse._walker_start import initial_walkers, posterior_mode, start_point
 
     y = _data({"shape": 3.0, "scale": 1.5}, np.random.default_rng(7))
     lp = LogPosterior(MIRROR, y, FREE, FIXED, inputs=KnownInputs({"shape": (5.0, 0.01)}))
     fr = fit_least_squares(MIRROR, y, free=FREE, fixed=FIXED, seed=0)
     assert abs(fr.values["shape"] - 3.0) < 0.3  # the L* alone point elsewhere
-    fit_start = _start_point(lp.spec, fr.values)
-    mode = _posterior_mode(lp, [fit_start, _start_point(lp.spec, dict(fr.values) | {"shape": 5.0})])
+    fit_start = start_point(lp.spec, fr.values)
+    mode = posterior_mode(lp, [fit_start, start_point(lp.spec, dict(fr.values) | {"shape": 5.0})])
     top = float(lp(mode[None, :])[0])
     for axis in range(mode.size):
         for step in (-0.02, 0.02):
             assert float(lp((mode + step * np.eye(mode.size)[axis])[None, :])[0]) < top
-    U = _initial_ball(lp, None, 8, np.random.default_rng(0), 0)
+    U = initial_walkers(lp, None, 8, np.random.default_rng(0), 0, start="ball")
     shape = np.asarray(lp.spec.from_unconstrained(U))[:, 0]
     assert np.all(np.abs(shape - 5.0) < 0.2), shape
     assert np.min(lp(U)) > float(lp(fit_start[None, :])[0]) + 1000

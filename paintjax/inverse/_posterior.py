@@ -13,7 +13,8 @@ true parameters through models of the measurements that produced them).
 
 Sampling is in the unconstrained coordinates u (the prior carries the log-Jacobian) with
 `emcee.EnsembleSampler(vectorize=True)`: the whole ensemble is one batched, compiled forward
-call. With `pool=` the ensemble is split into one chunk per pool worker and mapped with
+call. The walkers start over-dispersed about the posterior's maximum, drawn by adaptive importance
+sampling (`paintjax.inverse._walker_start`), so that the R-hat rule compares walkers that started apart. With `pool=` the ensemble is split into one chunk per pool worker and mapped with
 `pool.map` (an MPI or multiprocessing pool; each worker compiles its own forward). Chains are
 stored in an HDF5 backend so an interrupted run resumes where it stopped; the run stops when
 the chain is longer than `n_tau` (≥ 50) integrated autocorrelation times, the τ estimate has
@@ -28,7 +29,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import time
 from collections.abc import Mapping, Sequence
@@ -39,9 +39,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._chain import MAX_RHAT, MAX_STEPS, burn_thin, chain_diagnostics, check_chain, check_walkers, write_meta
-from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward, fit_least_squares
+from ._fit import INSTRUMENT_SD, FitResult, _problem, batched_forward
 from ._forward import ForwardModel
 from ._observations import check_angles, check_instrument_sd, check_measured
+from ._walker_start import STARTS, initial_walkers
 
 
 @dataclasses.dataclass
@@ -139,6 +140,9 @@ class PosteriorResult:
                          "bounds it there (widen the box if the physics allows)")
         return "\n".join(lines)
 
+
+#: emcee proposals (`sample_posterior`'s `moves`).
+MOVES = ("stretch", "de")
 
 #: A parameter piles against an edge when more than EDGE_MASS of its draws lie in the outer EDGE_BAND
 #: of its box (in the prior's unit coordinate; a flat likelihood puts EDGE_BAND there).
@@ -312,6 +316,8 @@ def sample_posterior(
     inference_data: bool = True,
     inputs=None,
     angles=None,
+    start: str = "dispersed",
+    moves: str = "stretch",
 ) -> PosteriorResult:
     """Sample the posterior of the free parameters with emcee (vectorised, resumable).
 
@@ -330,9 +336,14 @@ def sample_posterior(
         n_tau: required chain length in integrated autocorrelation times (≥ 50 by default).
         min_ess: required effective sample size (emcee's from τ, and ArviZ's bulk ESS of every parameter).
         max_rhat: largest ArviZ split R-hat of any parameter, walkers as chains (≥ 1; inf: no R-hat rule).
-        init: where to start the walkers: values (used as given), or a `FitResult` from which the maximum of
-            this posterior is sought (with the published inputs' values as a second start); default: a
-            least-squares fit, refined likewise.
+        init: where to start the walkers: values (a small ball about them, as given), or a `FitResult` from which
+            the maximum of this posterior is sought (with the published inputs' values as a second start); default:
+            a least-squares fit, refined likewise.
+        start: with `init` a fit or None, "dispersed" (walkers drawn over the posterior about its maximum by
+            adaptive importance sampling: over-dispersed starts, which the R-hat rule needs) or "ball" (a small
+            ball about the maximum); see `paintjax.inverse._walker_start`.
+        moves: emcee proposal: "stretch" (affine-invariant stretch move) or "de" (differential evolution 80 %,
+            its snooker variant 20 %).
         seed: seed of the initial ball and of emcee's generator.
         backend_path: HDF5 file for the chain (None: in memory, no resume).
         resume: continue the chain found in `backend_path` when it was sampled for the same data,
@@ -366,6 +377,10 @@ def sample_posterior(
         raise ValueError(f"need n_tau >= 1, 1 <= min_steps <= max_steps, check_every >= 1; got {n_tau}, {min_steps}, {max_steps}, {check_every}")
     if not max_rhat >= 1.0:
         raise ValueError(f"max_rhat must be >= 1 (inf: no R-hat rule), got {max_rhat!r}")
+    if start not in STARTS:
+        raise ValueError(f"start must be one of {', '.join(STARTS)}, got {start!r}")
+    if moves not in MOVES:
+        raise ValueError(f"moves must be one of {', '.join(MOVES)}, got {moves!r}")
     fn = lp if pool is None else _PooledLogPosterior(lp, pool, _pool_size(pool))
 
     backend = None
@@ -379,10 +394,11 @@ def sample_posterior(
         if not resumed:
             backend.reset(walkers, p)
             write_meta(backend_path, meta)
-    sampler = emcee.EnsembleSampler(walkers, p, fn, vectorize=True, backend=backend)
+    proposal = None if moves == "stretch" else [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)]
+    sampler = emcee.EnsembleSampler(walkers, p, fn, vectorize=True, backend=backend, moves=proposal)
     if backend is None or backend.iteration == 0:
         rng = np.random.default_rng(seed)
-        u_start = _initial_ball(lp, init, walkers, rng, seed)
+        u_start = initial_walkers(lp, init, walkers, rng, seed, start)
         sampler.random_state = np.random.RandomState(seed).get_state()
         state = u_start
 
@@ -408,75 +424,6 @@ def sample_posterior(
                 converged = True
                 break
     return _result(sampler, lp, converged, t0, backend_path, inference_data)
-
-
-def _initial_ball(lp: LogPosterior, init, walkers: int, rng, seed: int) -> np.ndarray:
-    """Walkers in a small ball (1e-2 in the unconstrained coordinates) about the start: a user's values as
-    given; otherwise the maximum of this posterior (`_posterior_mode`) found from the least-squares fit
-    (`init`, or one made here) and, when the published inputs are data, from their values too. A start at
-    the L*-only optimum can lie far from a posterior that the inputs move: walkers stranded on the way
-    have been seen to sit 200 nats below the rest for 60 000 steps."""
-    spec = lp.spec
-    if init is None or isinstance(init, FitResult):
-        fr = init if init is not None else fit_least_squares(
-            lp.forward, np.where(lp.angles, lp.measured, 50.0), free=[n for n in spec.names], fixed=dict(lp.fixed), bounds=lp.bounds,
-            instrument_sd=lp.sd, weights=lp.angles.astype(float), seed=seed)
-        starts = [dict(fr.values)]
-        if lp.inputs is not None:
-            starts.append(dict(fr.values) | {k: v for k, v in lp.inputs.start_values().items() if k in spec.names})
-        return _ball(lp, _posterior_mode(lp, [_start_point(spec, v) for v in starts]), walkers, rng)
-    values = dict(init)  # a user's dict: names and ranges checked, not silently mended
-    unknown = sorted(set(values) - set(spec.names) - set(lp.fixed))
-    if unknown:
-        raise ValueError(f"init names {unknown} are not parameters of this posterior (free: {', '.join(spec.names)})")
-    for prm in spec.parameters:
-        if prm.name in values:
-            v = float(values[prm.name])
-            if not (math.isfinite(v) and prm.lower <= v <= prm.upper):
-                raise ValueError(f"init value of {prm.name} must lie in [{prm.lower:g}, {prm.upper:g}] {prm.unit}".rstrip()
-                                 + f", got {values[prm.name]!r}")
-    return _ball(lp, _start_point(spec, values), walkers, rng)
-
-
-def _start_point(spec, values: dict) -> np.ndarray:
-    """Unconstrained point of `values` (defaults for the missing; δ at least 0.5; a value on a bound nudged inside,
-    where the transform maps it to ±inf)."""
-    x = []
-    for prm in spec.parameters:
-        v = float(values.get(prm.name, prm.default))
-        if prm.name == "discrepancy":
-            v = max(v, 0.5)
-        span = prm.upper - prm.lower
-        x.append(float(np.clip(v, prm.lower + 1e-3 * span, prm.upper - 1e-3 * span)))
-    return np.asarray(spec.to_unconstrained(np.array(x)), float)
-
-
-def _posterior_mode(lp: LogPosterior, starts: list) -> np.ndarray:
-    """The best of `starts` (unconstrained points) by log posterior, refined by Nelder–Mead on −log p
-    (at most 200 evaluations per parameter), then brought back inside as `_start_point` does."""
-    from scipy.optimize import minimize
-
-    U = np.stack(starts)
-    values = np.where(np.isfinite(v := lp(U)), v, -np.inf)
-    best = U[int(np.argmax(values))]
-
-    def cost(u):
-        v = float(lp(u[None, :])[0])
-        return -v if np.isfinite(v) else np.inf
-
-    res = minimize(cost, best, method="Nelder-Mead", options={"maxfev": 200 * len(best), "xatol": 1e-3, "fatol": 1e-3})
-    u = res.x if np.isfinite(res.fun) and res.fun <= -np.max(values) else best
-    spec = lp.spec
-    return _start_point(spec, dict(zip(spec.names, np.asarray(spec.from_unconstrained(u), float))))
-
-
-def _ball(lp: LogPosterior, u0: np.ndarray, walkers: int, rng) -> np.ndarray:
-    """`walkers` points about u0 with finite log posterior (a point without one is put at u0)."""
-    U = u0[None, :] + 1e-2 * rng.standard_normal((walkers, u0.size))
-    bad = ~np.isfinite(lp(U))
-    if bad.any():
-        U[bad] = u0
-    return U
 
 
 def _result(sampler, lp: LogPosterior, converged: bool, t0: float, backend_path, inference_data: bool) -> PosteriorResult:
