@@ -18,11 +18,16 @@ study), and reports per parameter:
 With `--walkers`, `--start` or `--moves` other than the study's, the same panels under another sampler; the study's
 own run then does not count among the runs compared.
 
+With `--against OTHER_STUDY` no posterior runs: the study's posteriors are compared panel by panel with another study's
+of the same panels (the same seed, so the same truths and data; another sampler): how far the PIT moves, and how many
+truths the change brings into or out of the central intervals. Writes <study>/compared_with_<other>.json.
+
 Writes <study>/reproducibility_w<walkers>_<start>_<moves>.json (atomic; rewritten as each posterior finishes, the summary
 at the end).
 
 Run: python experiments/posterior_reproducibility.py --study experiments/output/coverage_tracer_wide_seed2032
          [--panels 0-9] [--repeats 3] [--walkers 16] [--start dispersed|ball] [--moves stretch|de] [--workers 2]
+     python experiments/posterior_reproducibility.py --study A --against B
 """
 
 from __future__ import annotations
@@ -85,6 +90,25 @@ def summarise(runs: list[dict], rows: list[dict], panels: list[int], with_study:
     return out
 
 
+def compare_studies(rows: list[dict], other: list[dict]) -> dict:
+    """Per parameter, the same panels' posteriors in two studies: RMS and largest PIT change, and per level the truths
+    inside in both, in `rows` only (gained) and in `other` only (lost)."""
+    for r, o in zip(rows, other):
+        if not np.allclose(r["L_star"], o["L_star"]) or r["truth"] != o["truth"]:
+            raise SystemExit("the two studies do not hold the same panels (truths and L* differ): give studies of the same seed")
+    out = {}
+    for n in NAMES:
+        d = np.array([r["pit"][n] - o["pit"][n] for r, o in zip(rows, other)])
+        out[n] = {"pit_change_rms": float(np.sqrt(np.mean(d**2))), "pit_change_max": float(np.max(np.abs(d))),
+                  "largest_at_panel": int(np.argmax(np.abs(d)))}
+        for lv in sorted({k.split("@")[1] for k in rows[0]["inside"] if k.startswith(n + "@") and k.count("@") == 1}):
+            a = np.array([r["inside"][f"{n}@{lv}"] for r in rows], bool)
+            b = np.array([o["inside"][f"{n}@{lv}"] for o in other], bool)
+            out[n][f"inside@{lv}"] = {"both": int(np.sum(a & b)), "gained": int(np.sum(a & ~b)), "lost": int(np.sum(~a & b)),
+                                       "this": int(a.sum()), "other": int(b.sum())}
+    return out
+
+
 def parse_panels(text: str, count: int) -> list[int]:
     """'0-9' or '0,3,7' → panel indices, each in [0, count)."""
     out = []
@@ -106,6 +130,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="independent posteriors per panel (≥ 2)")
     ap.add_argument("--walkers", type=int, default=None, help="ensemble size (default: the study's)")
     ap.add_argument("--workers", type=int, default=2, help="processes running posteriors side by side")
+    ap.add_argument("--against", help="another study of the same panels: compare the two, panel by panel (runs no posterior)")
     ap.add_argument("--start", default=SAMPLER["start"], choices=("dispersed", "ball"), help="where the walkers start (default dispersed)")
     ap.add_argument("--moves", default=SAMPLER["moves"], choices=("stretch", "de"), help="emcee's proposal (default stretch)")
     a = ap.parse_args(argv)
@@ -116,6 +141,18 @@ def main(argv=None) -> int:
     if not 1 <= a.workers <= 16:
         raise SystemExit(f"--workers must be in [1, 16], got {a.workers}")
     rows = summary["rows"]
+    if a.against:
+        other = load_study(Path(a.against))
+        if len(other["rows"]) != len(rows):
+            raise SystemExit(f"--against {a.against}: {len(other['rows'])} panels, the study {len(rows)}")
+        table = compare_studies(rows, other["rows"])
+        atomic_write_json(study / f"compared_with_{Path(a.against).name}.json", {"study": study.name, "sampler": summary.get("sampler", SAMPLER_BEFORE),
+              "against": Path(a.against).name, "against_sampler": other.get("sampler", SAMPLER_BEFORE), "panels": len(rows), "summary": table})
+        print(f"{study.name} against {Path(a.against).name}, {len(rows)} panels (inside: this study / the other; gained, lost):")
+        for n, v in table.items():
+            cells = "; ".join(f"@{k.split('@')[1]} {c['this']}/{c['other']} (+{c['gained']} −{c['lost']})" for k, c in v.items() if k.startswith("inside@"))
+            print(f"{n:6s} PIT change RMS {v['pit_change_rms']:.3f}, largest {v['pit_change_max']:.3f} (panel {v['largest_at_panel']}); {cells}")
+        return 0
     panels = parse_panels(a.panels, len(rows))
     walkers = int(a.walkers or summary["walkers"])
     sampler = sampler_settings({"start": a.start, "moves": a.moves})

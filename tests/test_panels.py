@@ -239,6 +239,50 @@ def test_coverage_studies_of_different_seeds_pool_into_one(tmp_path):
         study.combine([tmp_path / "a", tmp_path / "other_model"], tmp_path / "x")
 
 
+def test_two_samplers_on_the_same_panels_are_compared_panel_by_panel(tmp_path, monkeypatch):
+    """`experiments/posterior_reproducibility.py --against`: the PIT change per parameter and the truths each study's
+    intervals gain or lose; studies of other panels are refused. `coverage.py --combine` refuses studies of other samplers
+    (a study without a recorded sampler used the small ball)."""
+    import importlib
+    import json
+    from pathlib import Path
+
+    monkeypatch.syspath_prepend(str(Path(__file__).parents[1] / "experiments"))
+    repro, study = importlib.import_module("posterior_reproducibility"), importlib.import_module("coverage")
+    names = ("shape", "scale", "sigma", "tau")
+    rng = np.random.default_rng(1)
+
+    def rows(pit, inside):
+        return [{"truth": {n: 1.0 + k for n in names}, "L_star": [float(k)] * 5, "pit": {n: p for n in names},
+                 "inside": {f"{n}@{lv}": bool(i) for n in names for lv in ("0.68", "0.95")}} for k, (p, i) in enumerate(zip(pit, inside))]
+
+    pit_a, pit_b = rng.uniform(size=6), rng.uniform(size=6)
+    a, b = rows(pit_a, [1, 1, 0, 0, 1, 1]), rows(pit_b, [1, 0, 1, 0, 1, 1])
+    table = repro.compare_studies(a, b)
+    d = pit_a - pit_b
+    assert table["tau"]["pit_change_rms"] == pytest.approx(np.sqrt(np.mean(d**2)))
+    assert table["tau"]["largest_at_panel"] == int(np.argmax(np.abs(d)))
+    assert table["sigma"]["inside@0.68"] == {"both": 3, "gained": 1, "lost": 1, "this": 4, "other": 4}
+    with pytest.raises(SystemExit, match="do not hold the same panels"):
+        repro.compare_studies(a, rows(pit_b, [1] * 5 + [0])[::-1])
+
+    def write(name, seed, **over):
+        summary = {"forward": "tracer-emulator-wide", "forward_model": "m", "free": list(names), "walkers": 16, "steps": 2000,
+                   "prior_box": {}, "seed": seed, "datasets": 6, "rows": a, "skipped_prior_draws": [],
+                   "coverage": {"0.68": {}, "0.95": {}}} | over
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "summary.json").write_text(json.dumps(summary))
+
+    write("ball", 1)
+    write("dispersed", 2, sampler=study.SAMPLER)
+    write("ball_recorded", 3, sampler=study.SAMPLER_BEFORE)
+    with pytest.raises(SystemExit, match="sampler differ"):
+        study.combine([tmp_path / "ball", tmp_path / "dispersed"], tmp_path / "x")
+    assert study.combine([tmp_path / "ball", tmp_path / "ball_recorded"], tmp_path / "y")["sampler"] == study.SAMPLER_BEFORE
+    with pytest.raises(ValueError, match=r"sampler settings \['walkers'\] are not known"):
+        study.sampler_settings({"walkers": 32})
+
+
 def test_coverage_study_measures_the_emulators_miss_at_the_truths():
     """`emulator_miss`: the forward model against each row's noise-free tracer curve. A forward that is the
     tracer curve plus a known offset and noise gives that offset as the mean miss (within 3 stated SE), the RMS
