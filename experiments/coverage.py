@@ -116,7 +116,9 @@ def clean_curve(forward_name: str, options: dict, i: int, t, parts=None) -> dict
 
 
 #: Bump when the fit, the sampler or the row's contents change: part of the key of each dataset's cached row.
-ROW_VERSION = 1
+#: 2: rows made on Dask workers before then used a tracer emulator rebuilt there without its run-to-run bias (its class
+#: was sent by value; `paintjax.inverse._tracer_emulator.__getattr__`).
+ROW_VERSION = 2
 
 
 class _NotDone(Exception):

@@ -270,6 +270,16 @@ def _wrap(em, spread: dict | None, *, build_seconds: float, evaluations: int, di
 _CLASS = None
 
 
+def __getattr__(name: str):
+    # `TracerEmulator` is defined on first use (importing this module does not import the forward layer) and found here
+    # by name, so pickle and cloudpickle send it to another process (Dask workers, process pools) by reference. Sent by
+    # value, an equinox class is rebuilt without its fields: traced in the other process, an emulator then lost its
+    # `run_to_run` bias and predicted the CRN tracer's L* instead of an independent run's.
+    if name == "TracerEmulator":
+        return _tracer_emulator_class()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def _tracer_emulator_class():
     """`TracerEmulator`: an `Emulator` whose `error_sd` is cross-validated RMS ⊕ seed-to-seed spread
     (defined lazily so importing this module does not import the forward layer)."""
@@ -335,6 +345,7 @@ def _tracer_emulator_class():
                     return out
                 return dataclasses.replace(out, seed_spread_sd=tuple(self.seed_spread_sd[i] for i in rows))
 
+        TracerEmulator.__qualname__ = "TracerEmulator"  # found by name (module `__getattr__`)
         _CLASS = TracerEmulator
     return _CLASS
 
