@@ -58,6 +58,7 @@ from paintjax import (  # noqa: E402
     atomic_write_json,
     cached_arrays,
     cached_json,
+    enable_compilation_cache,
     fit_least_squares,
     make_spec,
     sample_posterior,
@@ -218,7 +219,7 @@ def run(datasets: int, steps: int, walkers: int, starts: int, seed: int, out: Pa
     global FREE
     FREE = tuple(free)
     options = dict(forward_options or {})
-    jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
+    enable_compilation_cache()
     tracer = forward_name in TRACER_FORWARDS
     t_build = time.perf_counter()
     parts = out / "parts"  # each tracer run and row as it finishes: the study resumes from here

@@ -42,6 +42,7 @@ from paintjax import (  # noqa: E402
     atomic_savefig,
     atomic_write_json,
     corner_plot,
+    enable_compilation_cache,
     fit_least_squares,
     load_sample,
     sample_posterior,
@@ -200,7 +201,7 @@ def main(argv=None, forward_options: dict | None = None) -> dict:
         args.max_steps = 20000 if tracer else 6000
     out = Path(args.out or (OUT_TRACER if tracer else OUT))
     variants = args.variants or ("tracer" if tracer else "single,diffuse")
-    jax.config.update("jax_compilation_cache_dir", ".paintjax_cache/jax")
+    enable_compilation_cache()
     build = None
     if tracer:
         from paintjax.inverse import make_forward, tracer_info

@@ -35,11 +35,12 @@ def default_cache_dir() -> Path:
 
 
 def enable_compilation_cache() -> None:
-    """Persist XLA compilations under `default_cache_dir()/jax`, so repeat CLI runs skip most
-    compilation (an optimisation only: JAX falls back to compiling when the cache is unusable)."""
+    """Persist XLA compilations under `$JAX_COMPILATION_CACHE_DIR` when set, else `default_cache_dir()/jax`,
+    so repeat CLI runs skip most compilation (an optimisation only: JAX falls back to compiling when the
+    cache is unusable)."""
     import jax
 
-    jax.config.update("jax_compilation_cache_dir", str(default_cache_dir() / "jax"))
+    jax.config.update("jax_compilation_cache_dir", os.environ.get("JAX_COMPILATION_CACHE_DIR") or str(default_cache_dir() / "jax"))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
 

@@ -19,6 +19,9 @@ if _RUN:
 else:
     os.environ["PAINTJAX_CACHE"] = tempfile.mkdtemp(prefix="paintjax-test-cache-")
 
+# every process of the run (tests that give a subprocess its own PAINTJAX_CACHE too) shares one XLA cache
+os.environ["JAX_COMPILATION_CACHE_DIR"] = str(Path(os.environ["PAINTJAX_CACHE"]) / "jax")
+
 import jax  # noqa: E402
 
 from paintjax import enable_compilation_cache  # noqa: E402
