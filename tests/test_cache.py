@@ -139,3 +139,22 @@ def test_brdf_table_cache_hit_identical(tmp_path):
         assert np.array_equal(np.asarray(a1[k]), a2[k]), k
     a3, i3 = platelet_table_arrays(0.051, 0.64, **(kw | {"method": "rotate"}))
     assert not i3["cache_hit"]
+
+
+def test_compilation_cache_folder_follows_the_environment(monkeypatch, tmp_path):
+    """`enable_compilation_cache`: `$JAX_COMPILATION_CACHE_DIR` when set, else `$PAINTJAX_CACHE/jax`."""
+    import jax
+
+    from paintjax import enable_compilation_cache
+
+    before = jax.config.jax_compilation_cache_dir
+    try:
+        monkeypatch.setenv("PAINTJAX_CACHE", str(tmp_path / "c"))
+        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(tmp_path / "xla"))
+        enable_compilation_cache()
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "xla")
+        monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR")
+        enable_compilation_cache()
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "c" / "jax")
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
