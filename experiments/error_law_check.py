@@ -10,7 +10,8 @@ p is uniform: 5 % of panels below 0.05. Too many small p where posteriors missed
 uniform p says the misses come from elsewhere (the posterior's geometry, the prior's edge). Reports p per panel,
 the fractions below 0.05 and 0.32 overall and among the panels whose 95 % interval of a parameter missed, and
 Spearman's ρ of p with each truth, and (`directional_ranks`) whether the law holds the residual along the directions
-that move each parameter: the rank of its linearised least-squares shift among the law's draws. `--independent` asks the same of the independent tracer runs the run-to-run terms
+that move each parameter: the rank of its linearised least-squares shift among the law's draws, weighted by 1 / RMS²
+("directional") and by the law's own Hessian at the truth ("directional_law": the direction the posterior moves). `--independent` asks the same of the independent tracer runs the run-to-run terms
 were fitted to (in sample: what the law was made to hold); with `--folds K` each fold's runs are judged by run-to-run
 terms refitted to the other folds (out of sample, as fresh panels are).
 
@@ -65,22 +66,37 @@ def tail_probabilities(em, theta, data, noise_var, draws, rng):
     return r, p
 
 
-def directional_ranks(em, theta, r, noise_var, draws, rng):
+def directional_ranks(em, theta, r, noise_var, draws, rng, weights: str = "rms"):
     """Per panel and parameter, the rank among the law's draws of the residual's linearised least-squares shift of that
-    parameter: with J the emulator's Jacobian in log θ at the truth and W = diag(1 / error_sd²), the shift is the row
-    of (JᵀWJ)⁻¹JᵀW for the parameter times the residual. Uniform if the law holds along the directions that move the
-    posterior; the central 68 % of the law's draws should hold 68 % of the panels."""
+    parameter: with J the emulator's Jacobian in log θ at the truth and W the weights, the shift is the row of
+    (JᵀWJ)⁻¹JᵀW for the parameter times the residual. `weights` "rms": W = diag(1 / error_sd²); "law": W = the
+    Hessian of −log p(r) at r = 0 under the law at the truth (its correlation between the angles, its regional scale
+    and the noise: the direction the posterior moves along for small residuals). Uniform if the law holds along the
+    directions that move the posterior; the central 68 % of the law's draws should hold 68 % of the panels."""
     import jax.numpy as jnp
 
-    W = np.diag(1.0 / np.asarray(em.error_sd) ** 2)
+    if weights not in ("rms", "law"):
+        raise ValueError(f"weights must be 'rms' or 'law', got {weights!r}")
+    m = r.shape[1]
     f = lambda t: em.evaluate(t[None])[0]  # noqa: E731
     ranks = np.empty(theta.shape)
     for i, t in enumerate(theta):
         J = np.asarray(jax.jacfwd(f)(jnp.asarray(t))) * t
+        if weights == "rms":
+            W = np.diag(1.0 / np.asarray(em.error_sd) ** 2)
+        else:
+            nll = lambda x: -em.residual_log_density(x[None], jnp.full((1, m), noise_var), jnp.asarray(t)[None])[0]  # noqa: E731
+            W = np.asarray(jax.hessian(nll)(jnp.zeros(m)))
         M = np.linalg.solve(J.T @ W @ J, J.T @ W)
-        R = em.sample_residual(rng, np.full((draws, r.shape[1]), noise_var), np.broadcast_to(t, (draws, t.size)))
+        R = em.sample_residual(rng, np.full((draws, m), noise_var), np.broadcast_to(t, (draws, t.size)))
         ranks[i] = (np.sum(R @ M.T < M @ r[i], axis=0) + 0.5) / (draws + 1)
     return ranks
+
+
+def directional_summary(ranks) -> dict:
+    """Per parameter: the ranks, the fraction in the central 68 %, and their KS p-value against uniform."""
+    return {n: {"rank": ranks[:, j].tolist(), "central_68": float(np.mean((ranks[:, j] > 0.16) & (ranks[:, j] < 0.84))),
+                "uniform_ks_p": float(stats.kstest(ranks[:, j], "uniform").pvalue)} for j, n in enumerate(NAMES)}
 
 
 def uniformity(p) -> dict:
@@ -166,22 +182,24 @@ def main(argv=None) -> int:
     data = np.array([r["L_star"] for r in rows])
     r, p = tail_probabilities(em, theta, data, NOISE_SD**2, a.draws, np.random.default_rng(a.seed))
     ranks = directional_ranks(em, theta, r, NOISE_SD**2, a.draws, np.random.default_rng(a.seed + 1))
+    ranks_law = directional_ranks(em, theta, r, NOISE_SD**2, a.draws, np.random.default_rng(a.seed + 1), weights="law")
     missed = {n: np.array([not r_["inside"][f"{n}@0.95"] for r_ in rows]) for n in NAMES}
     out = {"study": str(study.name), "panels": len(rows), "draws": a.draws, "noise_sd": NOISE_SD,
            "p": p.tolist(), "residual": r.tolist(), "angles": [float(x) for x in em.angles],
            **uniformity(p),
            "missed_at_95": {n: {"panels": int(m.sum()), "p": p[m].tolist()} for n, m in missed.items()},
            "spearman_with_truth": {n: dict(zip(("rho", "p"), map(float, stats.spearmanr(p, theta[:, j])))) for j, n in enumerate(NAMES)},
-           "directional": {n: {"rank": ranks[:, j].tolist(), "central_68": float(np.mean((ranks[:, j] > 0.16) & (ranks[:, j] < 0.84))),
-                               "uniform_ks_p": float(stats.kstest(ranks[:, j], "uniform").pvalue)} for j, n in enumerate(NAMES)}}
+           "directional": directional_summary(ranks), "directional_law": directional_summary(ranks_law)}
     atomic_write_json(study / "error_law_check.json", out)
     print(f"{len(rows)} panels: {describe(p, out)}")
     for n, m in missed.items():
         print(f"  {n}: {m.sum()} missed at 95 %, their p: {np.round(p[m], 3).tolist()}")
     for n, v in out["spearman_with_truth"].items():
         print(f"  Spearman ρ(p, {n}) = {v['rho']:+.2f} (p {v['p']:.2f})")
-    for n, v in out["directional"].items():
-        print(f"  {n}: the residual's least-squares shift in the law's central 68 % for {v['central_68']:.0%} of panels, KS p {v['uniform_ks_p']:.2f}")
+    for key, how in (("directional", "1 / RMS² weights"), ("directional_law", "the law's weights")):
+        for n, v in out[key].items():
+            print(f"  {n}: the residual's least-squares shift ({how}) in the law's central 68 % for {v['central_68']:.0%} of panels, "
+                  f"KS p {v['uniform_ks_p']:.2f}")
     import matplotlib
 
     matplotlib.use("Agg")
