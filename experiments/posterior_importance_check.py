@@ -12,9 +12,10 @@ The importance sampler works in the box's unit coordinates z (log-uniform priors
 a shared pool of prior draws gives each panel's first weighted sample; each of `--rounds` rounds fits a proposal
 to the previous round's weighted draws, and the last round's `--draws` draws give the posterior (weights
 likelihood · prior / proposal). The proposal is a mixture: 0.1 · the prior (defensive: no weight exceeds 10 × the
-likelihood, so no tail is missed), 0.2 · one Student-t (ν 5) with the draws' weighted mean and covariance ×1.5², and
-0.7 · Student-t kernels at 64 draws resampled by weight with 0.6² of that covariance (they follow curved posteriors). Each panel's effective sample size (Kish) is
-reported; the PIT's Monte Carlo SE is about √(PIT (1 − PIT) / ESS).
+likelihood, so no tail is missed), 0.2 · one Student-t (ν 5) with the draws' weighted mean and 1.5² × their weighted
+covariance, and 0.7 · Student-t kernels at 64 draws resampled by weight with 0.6² × that weighted covariance (they
+follow curved posteriors). Each panel's effective sample size (Kish) is reported; the PIT's Monte Carlo SE is about
+√(PIT (1 − PIT) / ESS).
 
 `--synthetic N` checks the checker: N truths from the prior, their data drawn from the likelihood's own law
 (emulator + `sample_residual` with the noise), so the PITs must be uniform and the intervals hold the truth at
