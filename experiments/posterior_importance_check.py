@@ -34,7 +34,6 @@ Run: python experiments/posterior_importance_check.py --study experiments/output
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -44,12 +43,12 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
+from error_law_check import NAMES, load_study  # noqa: E402  the parameters and the study folder's check, shared
 from scipy import special, stats  # noqa: E402
 
 from paintjax import atomic_savefig, atomic_write_json  # noqa: E402
 from paintjax.inverse import LogPosterior, make_forward  # noqa: E402
 
-NAMES = ("shape", "scale", "sigma", "tau")
 NOISE_SD = 0.3  # the study's measurement noise and instrument SD [L*]
 LEVELS = (0.68, 0.95)
 OUT_SYNTHETIC = Path(__file__).resolve().parent / "output" / "importance_check" / "synthetic.json"
@@ -181,8 +180,9 @@ def run(em, truths, data, rng, a, label):
     for i, (t, y) in enumerate(zip(truths, data)):
         lik = Likelihood(em, y)
         t1 = time.time()
-        z, logw = importance_posterior(lik, z0, lik.of_lightness(z0, L0), rng, a.rounds, a.adapt_draws, a.draws)
-        row = summarise(lik, z, logw, t) | {"truth": dict(zip(NAMES, map(float, t))), "prior_pool_ess": kish_ess(lik.of_lightness(z0, L0))}
+        ll0 = lik.of_lightness(z0, L0)
+        z, logw = importance_posterior(lik, z0, ll0, rng, a.rounds, a.adapt_draws, a.draws)
+        row = summarise(lik, z, logw, t) | {"truth": dict(zip(NAMES, map(float, t))), "prior_pool_ess": kish_ess(ll0)}
         rows.append(row)
         print(f"{label} panel {i + 1}/{len(truths)}: ESS {row['ess']:.0f} ({time.time() - t1:.0f} s), PIT "
               + " ".join(f"{row['pit'][n]:.3f}" for n in NAMES), flush=True)
@@ -228,11 +228,7 @@ def main(argv=None) -> int:
     rng = np.random.default_rng(a.seed)
     if a.study:
         study = Path(a.study)
-        if not (study / "summary.json").is_file():
-            raise SystemExit(f"--study {study}: no summary.json there (a finished experiments/coverage.py study folder)")
-        summary = json.loads((study / "summary.json").read_text())
-        if summary.get("forward") != "tracer-emulator-wide" or tuple(summary.get("free", ())) != NAMES:
-            raise SystemExit(f"{study}: not a tracer-emulator-wide study over {NAMES}")
+        summary = load_study(study)
         truths = np.array([[r["truth"][n] for n in NAMES] for r in summary["rows"]])
         if a.data == "study":
             data = np.array([r["L_star"] for r in summary["rows"]])
@@ -247,8 +243,8 @@ def main(argv=None) -> int:
         out_path = OUT_SYNTHETIC
     rows, check = run(em, truths, data, rng, a, "study" if summary is not None else "model-drawn")
     n = len(rows)
-    out = {"study": a.study, "data": "study" if summary is not None else "model", "replicates": a.replicates, "synthetic": a.synthetic, "panels": n, "pool": a.pool, "rounds": a.rounds, "adapt_draws": a.adapt_draws,
-           "draws": a.draws, "seed": a.seed, "defensive": DEFENSIVE, "proposal_df": PROPOSAL_DF, "inflate": INFLATE,
+    out = {"study": a.study, "data": "study" if summary is not None else "model", "replicates": a.replicates, "synthetic": a.synthetic,
+           "panels": n, "pool": a.pool, "rounds": a.rounds, "adapt_draws": a.adapt_draws, "draws": a.draws, "seed": a.seed, "defensive": DEFENSIVE, "proposal_df": PROPOSAL_DF, "inflate": INFLATE,
            "max_difference_from_log_posterior": check, "ess_min": min(r["ess"] for r in rows),
            "ess_median": float(np.median([r["ess"] for r in rows])), "coverage": coverage(rows, n),
            "pit_ks_p": {m: float(stats.kstest([r["pit"][m] for r in rows], "uniform").pvalue) for m in NAMES}, "rows": rows}
