@@ -7,8 +7,11 @@ test that checks a cache miss uses its own folder (`tmp_path`), and the cache's 
 """
 
 import os
+import sys
 import tempfile
 from pathlib import Path
+
+import pytest
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 _RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID")
@@ -43,3 +46,21 @@ LONG_MODULES_FIRST = ("test_tracer.py", "test_tracer_single_scatter.py", "test_c
 def pytest_collection_modifyitems(session, config, items):
     rank = {name: k for k, name in enumerate(LONG_MODULES_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """`--dist loadfile` with a recovery from a dead worker that does not hang (`tests/_xdist_crash.py`)."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from _xdist_crash import CrashSafeLoadFileScheduling
+
+    return CrashSafeLoadFileScheduling(config, log)
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    """Name every test whose worker died (run once more on a fresh worker; failed if it died again)."""
+    if "_xdist_crash" in sys.modules and sys.modules["_xdist_crash"].CRASHED:
+        terminalreporter.section("workers that died")
+        for nodeid in sys.modules["_xdist_crash"].CRASHED:
+            terminalreporter.line(f"a worker died running {nodeid}")
