@@ -32,7 +32,7 @@ demo: $(STAMP) llvm
 	$(BIN)/paintjax demo
 
 test: $(STAMP) llvm
-	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder -q --durations=12
+	$(BIN)/python -m pytest -n 2 --dist loadfile --no-loadscope-reorder -q --durations=40
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/run_all.py
