@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.special import logsumexp
@@ -134,6 +135,7 @@ class EmulatorError(eqx.Module):
         """This law with another correlation between the angles (traceable: the mixture grid is kept)."""
         return eqx.tree_at(lambda e: e.correlation, self, jnp.asarray(correlation, float))
 
+    @eqx.filter_jit
     def residual_log_density(self, r: Float[Array, "n m"], var: Float[Array, "n m"], z: Float[Array, "n p"],
                              have: Bool[Array, "n m"] | None = None) -> Float[Array, " n"]:
         """log p(r) of the vector r = Normal(0, diag(var)) + this error at unit-cube points z, over the angles in
@@ -184,7 +186,6 @@ def fit_emulator_error(z: np.ndarray, errors: np.ndarray) -> EmulatorError:
         `EmulatorError` with per-angle scales, a shared log-linear slope over the box, ν in `DF_RANGE` and the
         correlation between the angles.
     """
-    import jax
     from jax.scipy.special import gammaln
     from scipy import optimize
 
@@ -315,6 +316,7 @@ def _run_to_run_loss(q, law: EmulatorError, weight, z, r):
 
 _loss_and_grad = eqx.filter_jit(eqx.filter_value_and_grad(_run_to_run_loss))
 _row_log_density = eqx.filter_jit(_run_to_run_row_log_density)
+_loss_hessian = eqx.filter_jit(jax.hessian(_run_to_run_loss))
 
 
 def _fit_run_to_run_terms(law: EmulatorError, z, r, weight) -> np.ndarray:
@@ -367,8 +369,6 @@ def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray, d
     Returns:
         `RunToRun` with the fitted terms, ν, and each tried ν's cross-validated log predictive density.
     """
-    import jax
-
     z, r = np.asarray(z, float), np.asarray(residuals, float)
     if z.ndim != 2 or r.ndim != 2 or z.shape[0] != r.shape[0] or r.shape[1] != error.scale.shape[0] or not np.all(np.isfinite(r)):
         raise ValueError(f"z (n, p) and residuals (n, {error.scale.shape[0]}) must be finite with the same n, got {z.shape} and {r.shape}")
@@ -393,7 +393,7 @@ def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray, d
     q = jnp.asarray(_fit_run_to_run_terms(law, zj, rj, ones))
     sd, slope, bias, R = _unpack_run_to_run(q, m, p)
     nb = (p + 1) * m
-    hess = jax.hessian(lambda x: _run_to_run_loss(x, law, ones, zj, rj))(q)
+    hess = _loss_hessian(q, law, ones, zj, rj)
     cov = np.linalg.pinv(np.asarray(hess))[m + p:m + p + nb, m + p:m + p + nb]  # rows (k, j): k·m + j
     idx = np.arange(p + 1)[:, None] * m + np.arange(m)[None, :]
     bias_cov = np.stack([cov[np.ix_(idx[:, j], idx[:, j])] for j in range(m)])
