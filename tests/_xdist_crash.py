@@ -27,6 +27,11 @@ from xdist.scheduler import LoadFileScheduling
 CRASHED: list[str] = []
 
 
+def fits_this_xdist() -> bool:
+    """Whether the installed xdist's file scheduler has the internals this one builds on (xdist 3.5–3.8)."""
+    return all(hasattr(LoadFileScheduling, name) for name in ("_pending_of", "_reschedule", "_assign_work_unit", "remove_node"))
+
+
 class CrashSafeLoadFileScheduling(LoadFileScheduling):
     """`--dist loadfile` whose recovery from a dead worker does not hang and runs the fatal test at most twice."""
 
@@ -54,3 +59,19 @@ class CrashSafeLoadFileScheduling(LoadFileScheduling):
         super()._reschedule(node)
         if not self.workqueue and not node.shutting_down:
             node.shutdown()
+
+
+def make_scheduler(config, log):
+    """`pytest_xdist_make_scheduler`: this scheduler for `--dist loadfile` (None, xdist's own, otherwise or when
+    the installed xdist lacks the internals it builds on; tests/test_xdist_crash.py then fails)."""
+    if config.getvalue("dist") != "loadfile" or not fits_this_xdist():
+        return None
+    return CrashSafeLoadFileScheduling(config, log)
+
+
+def report_deaths(terminalreporter) -> None:
+    """`pytest_terminal_summary`: a line per test whose worker died."""
+    if CRASHED:
+        terminalreporter.section("workers that died")
+        for nodeid in CRASHED:
+            terminalreporter.line(f"a worker died running {nodeid}")

@@ -51,16 +51,12 @@ def pytest_collection_modifyitems(session, config, items):
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
     """`--dist loadfile` with a recovery from a dead worker that does not hang (`tests/_xdist_crash.py`)."""
-    if config.getvalue("dist") != "loadfile":
-        return None
-    from _xdist_crash import CrashSafeLoadFileScheduling
+    from _xdist_crash import make_scheduler
 
-    return CrashSafeLoadFileScheduling(config, log)
+    return make_scheduler(config, log)
 
 
-def pytest_terminal_summary(terminalreporter, config):
+def pytest_terminal_summary(terminalreporter):
     """Name every test whose worker died (run once more on a fresh worker; failed if it died again)."""
-    if "_xdist_crash" in sys.modules and sys.modules["_xdist_crash"].CRASHED:
-        terminalreporter.section("workers that died")
-        for nodeid in sys.modules["_xdist_crash"].CRASHED:
-            terminalreporter.line(f"a worker died running {nodeid}")
+    if "_xdist_crash" in sys.modules:
+        sys.modules["_xdist_crash"].report_deaths(terminalreporter)

@@ -18,12 +18,12 @@ import pytest
 
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
-    from _xdist_crash import CrashSafeLoadFileScheduling
-    return CrashSafeLoadFileScheduling(config, log)
+    from _xdist_crash import make_scheduler
+    return make_scheduler(config, log)
 
 def pytest_terminal_summary(terminalreporter):
-    for nodeid in sys.modules["_xdist_crash"].CRASHED if "_xdist_crash" in sys.modules else ():
-        terminalreporter.line(f"a worker died running {nodeid}")
+    if "_xdist_crash" in sys.modules:
+        sys.modules["_xdist_crash"].report_deaths(terminalreporter)
 """
 
 
