@@ -30,7 +30,7 @@ import jax  # noqa: E402
 from paintjax import enable_compilation_cache  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
-enable_compilation_cache()  # compilations of ≥ 1 s persist in the shared test cache
+enable_compilation_cache()  # compilations persist in the shared test cache
 
 #: The test modules that take minutes on the 2-core CPU, longest first (measured in `make test` on
 #: 2026-12-02: about 490, 240 and 160 s of a 1600 s total). They are collected first and the Makefile
