@@ -15,12 +15,13 @@ The whole run then hangs until something outside kills it, and the report never 
 worker down once the queue is empty. The test a worker died on runs once more, on a fresh worker
 (the death may come from what earlier tests left in that process): if its worker dies again it is
 reported failed ("worker crashed while running ..."); either way it is listed in `CRASHED` and the run's
-summary names it. Every other test still runs. It is installed by `tests/conftest.py` through xdist's
-`pytest_xdist_make_scheduler` hook.
+summary names it. Every other test still runs. This module is a pytest plugin (its two hooks below):
+`tests/conftest.py` takes them in, and any other suite can load it with `-p _xdist_crash`.
 """
 
 from __future__ import annotations
 
+import pytest
 from xdist.scheduler import LoadFileScheduling
 
 #: The tests whose worker died while running them, in order (a test twice when it died twice).
@@ -61,16 +62,17 @@ class CrashSafeLoadFileScheduling(LoadFileScheduling):
             node.shutdown()
 
 
-def make_scheduler(config, log):
-    """`pytest_xdist_make_scheduler`: this scheduler for `--dist loadfile` (None, xdist's own, otherwise or when
-    the installed xdist lacks the internals it builds on; tests/test_xdist_crash.py then fails)."""
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """This scheduler for `--dist loadfile` (None, xdist's own, otherwise or when the installed xdist lacks the
+    internals it builds on; tests/test_xdist_crash.py then fails)."""
     if config.getvalue("dist") != "loadfile" or not fits_this_xdist():
         return None
     return CrashSafeLoadFileScheduling(config, log)
 
 
-def report_deaths(terminalreporter) -> None:
-    """`pytest_terminal_summary`: a line per test whose worker died."""
+def pytest_terminal_summary(terminalreporter) -> None:
+    """A line per test whose worker died."""
     if CRASHED:
         terminalreporter.section("workers that died")
         for nodeid in CRASHED:

@@ -7,11 +7,8 @@ test that checks a cache miss uses its own folder (`tmp_path`), and the cache's 
 """
 
 import os
-import sys
 import tempfile
 from pathlib import Path
-
-import pytest
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
 _RUN = os.environ.get("PYTEST_XDIST_TESTRUNUID")
@@ -48,15 +45,9 @@ def pytest_collection_modifyitems(session, config, items):
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the rest keep their order
 
 
-@pytest.hookimpl(optionalhook=True)
-def pytest_xdist_make_scheduler(config, log):
-    """`--dist loadfile` with a recovery from a dead worker that does not hang (`tests/_xdist_crash.py`)."""
-    from _xdist_crash import make_scheduler
-
-    return make_scheduler(config, log)
-
-
-def pytest_terminal_summary(terminalreporter):
-    """Name every test whose worker died (run once more on a fresh worker; failed if it died again)."""
-    if "_xdist_crash" in sys.modules:
-        sys.modules["_xdist_crash"].report_deaths(terminalreporter)
+# xdist's scheduler for `--dist loadfile`, made safe against a worker that dies, and the summary line for each
+# death (`tests/_xdist_crash.py`); without xdist the suite runs in one process and needs neither
+try:
+    from _xdist_crash import pytest_terminal_summary, pytest_xdist_make_scheduler  # noqa: F401
+except ImportError:
+    pass

@@ -11,24 +11,8 @@ import pytest
 
 pytest.importorskip("xdist")
 
-CONFTEST = """
-import sys
-
-import pytest
-
-@pytest.hookimpl(optionalhook=True)
-def pytest_xdist_make_scheduler(config, log):
-    from _xdist_crash import make_scheduler
-    return make_scheduler(config, log)
-
-def pytest_terminal_summary(terminalreporter):
-    if "_xdist_crash" in sys.modules:
-        sys.modules["_xdist_crash"].report_deaths(terminalreporter)
-"""
-
 
 def _suite(folder: Path) -> None:
-    (folder / "conftest.py").write_text(CONFTEST)
     (folder / "test_1_crash.py").write_text(textwrap.dedent("""
         import os, signal
         from pathlib import Path
@@ -47,8 +31,8 @@ def _suite(folder: Path) -> None:
 
 def _run(folder: Path, workers: int, timeout: float):
     env = {"PYTHONPATH": str(Path(__file__).parent), "PATH": "/usr/bin:/bin"}
-    return subprocess.run([sys.executable, "-m", "pytest", "-n", str(workers), "--dist", "loadfile", "-p", "no:cacheprovider",
-                           "-p", "no:randomly", "-q", "-o", "faulthandler_timeout=0", str(folder)],
+    return subprocess.run([sys.executable, "-m", "pytest", "-n", str(workers), "--dist", "loadfile", "-p", "_xdist_crash",
+                           "-p", "no:cacheprovider", "-q", "-o", "faulthandler_timeout=0", str(folder)],
                           cwd=folder, env=env, capture_output=True, text=True, timeout=timeout)
 
 
