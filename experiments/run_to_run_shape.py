@@ -33,8 +33,9 @@ FIFTHS = 5
 
 
 def misses():
-    """(z, miss, angles): the unit-cube points of the independent runs that have an array, and the shipped emulator's
-    prediction minus each run, at every angle it gives (the run-to-run bias already subtracted)."""
+    """(z, miss, angles, names): the unit-cube points of the independent runs that have an array, the shipped
+    emulator's prediction minus each run at every angle it gives (the run-to-run bias already subtracted), those
+    angles, and the box's parameter names (the columns of z)."""
     angles = WIDE_TRACER_SETTINGS.aspecular
     em = wide_tracer_emulator(angles=angles)
     fn = TracerLStar(WIDE_TRACER_SETTINGS)
@@ -44,7 +45,7 @@ def misses():
         made = np.all(np.isfinite(L), axis=1)  # a θ whose platelets cannot fit the film has no array
         z.append(zb[made])
         out.append(np.asarray(em(tb[made])) - L[made])
-    return np.concatenate(z), np.concatenate(out), angles
+    return np.concatenate(z), np.concatenate(out), angles, em.spec.names
 
 
 def f_test(X1, X2, y) -> np.ndarray:
@@ -56,8 +57,7 @@ def f_test(X1, X2, y) -> np.ndarray:
 
 def main() -> int:
     enable_compilation_cache()
-    z, miss, angles = misses()
-    names = wide_tracer_emulator().spec.names
+    z, miss, angles, names = misses()
     s = z[:, names.index("sigma")] - 0.5
     linear = np.c_[np.ones(len(z)), z - 0.5]
     p_square = f_test(linear, np.c_[linear, s**2], miss)
