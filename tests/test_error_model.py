@@ -213,10 +213,49 @@ def test_run_to_run_fit_recovers_a_bias_over_the_box_and_a_regional_spread():
     se0 = np.asarray(term0.bias_se)
     assert np.all(np.abs(np.asarray(term0.bias)) < 3.5 * se0)
     assert abs(float(term0.correlation[0, 1])) < 0.15
-    with pytest.raises(ValueError, match="must be finite"):
+    with pytest.raises(ValueError, match="every run needs a finite angle"):
         fit_run_to_run(law, z, np.full((600, 2), np.nan))
+    with pytest.raises(ValueError, match="none may be infinite"):
+        fit_run_to_run(law, z, np.full((600, 2), np.inf))
     assert float(term.df) == 2.4 and term.df_grid.size == 0  # ν given: none chosen
     np.testing.assert_allclose(np.asarray(term.law(law).correlation), np.asarray(term.correlation))
+
+
+def test_run_to_run_fit_recovers_a_bent_bias_and_marginalises_angles_a_run_lacks():
+    """A bias that bends along z₂ (square and cube terms): `curved=(1,)` finds its coefficients within their stated
+    errors. With the second angle missing (NaN) in half the runs the fit still finds them, its errors grow, and each
+    row's density is the law's with that angle marginalised."""
+    from paintjax.inverse._error_model import _row_log_density, _unpack_run_to_run, fit_run_to_run, regional_scale
+
+    law = EmulatorError([1.0, 1.5], [0.0, 0.0], 3.0)
+    rng = np.random.default_rng(8)
+    n = 500
+    z = rng.random((n, 2))
+    u = z - 0.5
+    bias = np.array([[0.5, -1.0], [2.0, 0.0], [0.0, 1.0], [6.0, -4.0], [-10.0, 12.0]])  # 1, z₁, z₂, z₂², z₂³
+    x = np.c_[np.ones(n), u, u[:, 1] ** 2, u[:, 1] ** 3]
+    r = law.sample(rng, np.full((n, 2), 0.25), z) + x @ bias
+    term = fit_run_to_run(law, z, r, df=3.0, curved=(1,))
+    assert term.curved == (1,) and term.bias.shape == (5, 2) and term.bias_cov.shape == (2, 5, 5)
+    se = np.asarray(term.bias_se)
+    assert np.all(np.abs(np.asarray(term.bias) - bias) < 3.5 * se), (term.bias, se)
+    np.testing.assert_allclose(np.asarray(term.mean(jnp.asarray(z[:4]))), x[:4] @ np.asarray(term.bias))
+    assert term.select([1]).curved == (1,)
+    gappy = r.copy()
+    gappy[::2, 1] = np.nan
+    half = fit_run_to_run(law, z, gappy, df=3.0, curved=(1,))
+    se_half = np.asarray(half.bias_se)
+    assert np.all(np.abs(np.asarray(half.bias) - bias) < 3.5 * se_half), (half.bias, se_half)
+    assert np.all(se_half[:, 1] > se[:, 1])
+    q = jnp.concatenate([jnp.log(half.sd), half.slope, half.bias.ravel(), jnp.zeros(1)])  # correlation 0 packed
+    rows = _row_log_density(q, law, jnp.asarray(z[:4]), jnp.asarray(gappy[:4]), (1,))
+    sd, slope, b, R = _unpack_run_to_run(q, 2, 2, (1,))
+    v = np.asarray(regional_scale(sd, slope, jnp.asarray(z[:4]))) ** 2
+    miss = np.nan_to_num(gappy[:4]) - x[:4] @ np.asarray(b)
+    expect = law.with_correlation(R).residual_log_density(miss, v, z[:4], np.isfinite(gappy[:4]))
+    np.testing.assert_allclose(np.asarray(rows), np.asarray(expect), rtol=1e-10)
+    with pytest.raises(ValueError, match="curved"):
+        fit_run_to_run(law, z, r, df=3.0, curved=(2,))
 
 
 @pytest.mark.parametrize("true_df, chosen", [(1.5, 1.5), (50.0, 8.0)])

@@ -29,6 +29,7 @@ so that the law holds runs it was not fitted to).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
@@ -243,8 +244,9 @@ class RunToRun(eqx.Module):
     part of the miss (`fit_run_to_run`).
 
     Attributes:
-        bias: (p + 1, m) per angle: the bias at the box centre, then its change per unit-cube coordinate [L*].
-        bias_cov: (m, p + 1, p + 1) the bias coefficients' covariance (inverse Hessian of the fit).
+        bias: (q, m) per angle: the bias at the box centre, then its change per unit-cube coordinate, then for each
+            axis of `curved` its coefficients of (z_k − ½)² and (z_k − ½)³ [L*] (q = 1 + p + 2·len(curved)).
+        bias_cov: (m, q, q) the bias coefficients' covariance (inverse Hessian of the fit).
         sd: (m,) the spread's scale at the box centre [L*]; slope: (p,) its log-linear change (shared by the angles).
         correlation: (m, m) the correlation between the angles of the error law's part of the miss against an
             independent run (it replaces the cross-validated law's, `law`).
@@ -252,6 +254,7 @@ class RunToRun(eqx.Module):
             law's, `law`).
         df_grid, df_score: (k,) the ν tried and each one's cross-validated log predictive density of the misses
             (empty when ν was given).
+        curved: the unit-cube axes whose bias bends (square and cube terms; static, () for a linear bias).
     """
 
     bias: Float[Array, "q m"]
@@ -262,6 +265,7 @@ class RunToRun(eqx.Module):
     df: Float[Array, ""]
     df_grid: Float[Array, " k"]
     df_score: Float[Array, " k"]
+    curved: tuple[int, ...] = eqx.field(static=True, default=())
 
     @property
     def bias_se(self) -> Float[Array, "q m"]:
@@ -275,42 +279,47 @@ class RunToRun(eqx.Module):
 
     def mean(self, z: Float[Array, "n p"]) -> Float[Array, "n m"]:
         """The bias (emulator of the CRN tracer − independent run) at unit-cube points z."""
-        return _design(z) @ self.bias
+        return _design(z, self.curved) @ self.bias
 
     def variance(self, z: Float[Array, "n p"]) -> Float[Array, "n m"]:
         """The spread's variance plus the fitted bias's own variance at unit-cube points z."""
-        x = _design(z)
+        x = _design(z, self.curved)
         return regional_scale(self.sd, self.slope, z) ** 2 + jnp.einsum("nq,mqr,nr->nm", x, self.bias_cov, x)
 
     def select(self, rows) -> "RunToRun":
         """The terms of some output angles (their rows, in that order)."""
         rows = np.asarray(rows)
         return RunToRun(self.bias[:, rows], self.bias_cov[rows], self.sd[rows], self.slope, self.correlation[np.ix_(rows, rows)],
-                        self.df, self.df_grid, self.df_score)
+                        self.df, self.df_grid, self.df_score, self.curved)
 
 
-def _design(z):
-    z = jnp.asarray(z)
-    return jnp.concatenate([jnp.ones(z.shape[:-1] + (1,)), z - 0.5], axis=-1)
+def _design(z, curved: tuple[int, ...] = ()):
+    """The bias's regressors at unit-cube points z (n, p): 1, z − ½, then (z_k − ½)² and (z_k − ½)³ per axis k of `curved`."""
+    u = jnp.asarray(z) - 0.5
+    bent = [u[..., k:k + 1] ** e for k in curved for e in (2, 3)]
+    return jnp.concatenate([jnp.ones(u.shape[:-1] + (1,)), u, *bent], axis=-1)
 
 
-def _unpack_run_to_run(q, m: int, p: int):
-    nb = (p + 1) * m
-    return (jnp.exp(q[:m]), q[m:m + p], q[m + p:m + p + nb].reshape(p + 1, m), correlation_from_unconstrained(q[m + p + nb:], m))
+def _unpack_run_to_run(q, m: int, p: int, curved: tuple[int, ...]):
+    w = 1 + p + 2 * len(curved)
+    nb = w * m
+    return (jnp.exp(q[:m]), q[m:m + p], q[m + p:m + p + nb].reshape(w, m), correlation_from_unconstrained(q[m + p + nb:], m))
 
 
-def _run_to_run_row_log_density(q, law: EmulatorError, z, r):
+def _run_to_run_row_log_density(q, law: EmulatorError, z, r, curved: tuple[int, ...]):
     """log p of each miss r (n, m) at unit-cube points z (n, p) under the run-to-run terms packed in q and `law`."""
     m, p = r.shape[1], z.shape[1]
-    sd, slope, bias, R = _unpack_run_to_run(q, m, p)
-    return law.with_correlation(R).residual_log_density(r - _design(z) @ bias, regional_scale(sd, slope, z) ** 2, z)
+    sd, slope, bias, R = _unpack_run_to_run(q, m, p, curved)
+    have = jnp.isfinite(r)  # an angle a run lacks (NaN) is marginalised
+    miss = jnp.where(have, r, 0.0) - _design(z, curved) @ bias
+    return law.with_correlation(R).residual_log_density(miss, regional_scale(sd, slope, z) ** 2, z, have)
 
 
-def _run_to_run_loss(q, law: EmulatorError, weight, z, r):
+def _run_to_run_loss(q, law: EmulatorError, weight, z, r, curved: tuple[int, ...]):
     """The negative log posterior of the run-to-run terms packed in q given the misses with weight 1 (0: held out)."""
     m, p = r.shape[1], z.shape[1]
-    _, _, bias, R = _unpack_run_to_run(q, m, p)
-    ll = _run_to_run_row_log_density(q, law, z, r)
+    _, _, bias, R = _unpack_run_to_run(q, m, p, curved)
+    ll = _run_to_run_row_log_density(q, law, z, r, curved)
     return -jnp.sum(weight * ll) + 0.5 * jnp.sum((bias / BIAS_PRIOR_SD) ** 2) - _lkj_log_prior(R)
 
 
@@ -319,25 +328,26 @@ _row_log_density = eqx.filter_jit(_run_to_run_row_log_density)
 _loss_hessian = eqx.filter_jit(jax.hessian(_run_to_run_loss))
 
 
-def _fit_run_to_run_terms(law: EmulatorError, z, r, weight) -> np.ndarray:
+def _fit_run_to_run_terms(law: EmulatorError, z, r, weight, curved: tuple[int, ...]) -> np.ndarray:
     """The MAP of the run-to-run terms (packed) under `law` from the misses with weight 1."""
     from scipy import optimize
 
     m, p = r.shape[1], z.shape[1]
-    x, wt = np.asarray(_design(z)), np.asarray(weight, float)
-    start = np.linalg.lstsq(x * wt[:, None], np.asarray(r) * wt[:, None], rcond=None)[0]
-    left = (np.asarray(r) - x @ start)[wt > 0]
-    q0 = np.r_[np.log(np.std(left, axis=0) + 1e-9), np.zeros(p), start.ravel(), np.zeros(m * (m - 1) // 2)]
+    x, wt, rn = np.asarray(_design(z, curved)), np.asarray(weight, float), np.asarray(r)
+    use = np.isfinite(rn) & (wt[:, None] > 0)  # per angle, the runs that have it and are not held out
+    start = np.stack([np.linalg.lstsq(x[use[:, j]], rn[use[:, j], j], rcond=None)[0] for j in range(m)], axis=1)
+    spread = [np.std(rn[use[:, j], j] - x[use[:, j]] @ start[:, j]) for j in range(m)]
+    q0 = np.r_[np.log(np.asarray(spread) + 1e-9), np.zeros(p), start.ravel(), np.zeros(m * (m - 1) // 2)]
     wj = jnp.asarray(wt)
 
     def fun(q):
-        v, g = _loss_and_grad(jnp.asarray(q), law, wj, z, r)
+        v, g = _loss_and_grad(jnp.asarray(q), law, wj, z, r, curved)
         return float(v), np.asarray(g)
 
     return optimize.minimize(fun, q0, jac=True, method="L-BFGS-B").x
 
 
-def _cross_validated_df(error: EmulatorError, z, r, grid: np.ndarray, folds: int, seed: int) -> np.ndarray:
+def _cross_validated_df(error: EmulatorError, z, r, grid: np.ndarray, folds: int, seed: int, curved: tuple[int, ...]) -> np.ndarray:
     """Each ν of `grid`'s summed log density of the held-out misses, over `folds` random folds (`seed`), under the
     terms fitted to the other folds."""
     fold = np.random.default_rng(seed).permutation(r.shape[0]) % folds
@@ -345,34 +355,44 @@ def _cross_validated_df(error: EmulatorError, z, r, grid: np.ndarray, folds: int
     for i, nu in enumerate(grid):
         law = error.with_df(nu)
         for k in range(folds):
-            q = _fit_run_to_run_terms(law, z, r, fold != k)
-            score[i] += float(jnp.sum(_row_log_density(jnp.asarray(q), law, z[fold == k], r[fold == k])))
+            q = _fit_run_to_run_terms(law, z, r, fold != k, curved)
+            score[i] += float(jnp.sum(_row_log_density(jnp.asarray(q), law, z[fold == k], r[fold == k], curved)))
     return score
 
 
 def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray, df: float | None = None,
-                   df_grid=RUN_TO_RUN_DF_GRID, folds: int = RUN_TO_RUN_FOLDS, seed: int = 0) -> RunToRun:
+                   df_grid=RUN_TO_RUN_DF_GRID, folds: int = RUN_TO_RUN_FOLDS, seed: int = 0, curved: Sequence[int] = ()) -> RunToRun:
     """Maximum a-posteriori `RunToRun` of an emulator's misses r (n, m) against independent runs at unit-cube
     points z (n, p): r = b(z) + e + ε, e ~ `error` (the emulator's cross-validated law against the CRN tracer it
-    was trained on) with its correlation between the angles refitted and its ν chosen anew, b(z) = b₀ + B·(z − ½) the
-    CRN tracer's bias against fresh runs (each coefficient with a normal prior of SD `BIAS_PRIOR_SD`),
+    was trained on) with its correlation between the angles refitted and its ν chosen anew, b(z) = b₀ + B·(z − ½)
+    (+ c_k (z_k − ½)² + d_k (z_k − ½)³ for each axis k of `curved`) the CRN tracer's bias against fresh runs (each
+    coefficient with a normal prior of SD `BIAS_PRIOR_SD`),
     ε ~ Normal(0, s_j² exp(2γ·(z − ½))) the run-to-run spread (another array, other rays), the correlation with the
     LKJ prior of `fit_emulator_error`. The bias's covariance is the inverse Hessian at the optimum.
 
     Arguments:
         error: the emulator's cross-validated `EmulatorError`.
-        z, residuals: the unit-cube points (n, p) of the independent runs and the emulator's misses there (n, m).
+        z, residuals: the unit-cube points (n, p) of the independent runs and the emulator's misses there (n, m;
+            NaN where a run lacks an angle: that angle is marginalised out of its row's density).
         df: ν of the law against the runs; default: the one of `df_grid` whose terms, fitted to all folds but one,
             give the held-out fold's misses the highest log density, summed over `folds` random folds (`seed`;
             leave-one-out when there are fewer misses than folds; with one miss, `error`'s own ν).
+        curved: the unit-cube axes along which the bias bends (square and cube terms); default none (linear).
 
     Returns:
         `RunToRun` with the fitted terms, ν, and each tried ν's cross-validated log predictive density.
     """
     z, r = np.asarray(z, float), np.asarray(residuals, float)
-    if z.ndim != 2 or r.ndim != 2 or z.shape[0] != r.shape[0] or r.shape[1] != error.scale.shape[0] or not np.all(np.isfinite(r)):
-        raise ValueError(f"z (n, p) and residuals (n, {error.scale.shape[0]}) must be finite with the same n, got {z.shape} and {r.shape}")
+    if z.ndim != 2 or r.ndim != 2 or z.shape[0] != r.shape[0] or r.shape[1] != error.scale.shape[0] or not np.all(np.isfinite(z)):
+        raise ValueError(f"z (n, p) finite and residuals (n, {error.scale.shape[0]}) with the same n, got {z.shape} and {r.shape}")
     n, m, p = r.shape[0], r.shape[1], z.shape[1]
+    curved = tuple(int(k) for k in curved)
+    if len(set(curved)) != len(curved) or not all(0 <= k < p for k in curved):
+        raise ValueError(f"curved must name distinct unit-cube axes in [0, {p - 1}], got {curved}")
+    have = np.isfinite(r)
+    if np.any(np.isinf(r)) or not np.all(have.any(axis=1)) or not np.all(have.any(axis=0)):
+        raise ValueError("residuals: NaN marks an angle a run lacks; every run needs a finite angle and every angle a finite "
+                         "miss, and none may be infinite")
     zj, rj = jnp.asarray(z), jnp.asarray(r)
     grid, score = np.zeros(0), np.zeros(0)
     if df is None:
@@ -382,7 +402,7 @@ def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray, d
         if not folds >= 2:
             raise ValueError(f"folds must be >= 2, got {folds}")
         if n >= 2:
-            score = _cross_validated_df(error, zj, rj, grid, min(int(folds), n), seed)
+            score = _cross_validated_df(error, zj, rj, grid, min(int(folds), n), seed, curved)
             df = float(grid[np.argmax(score)])
         else:  # one miss: nothing to hold out
             df, grid = error.df, np.zeros(0)
@@ -390,11 +410,12 @@ def fit_run_to_run(error: EmulatorError, z: np.ndarray, residuals: np.ndarray, d
         raise ValueError(f"df must be >= {DF_RANGE[0]:g} (inf for a normal law), got {df!r}")
     law = error.with_df(df)
     ones = jnp.ones(n)
-    q = jnp.asarray(_fit_run_to_run_terms(law, zj, rj, ones))
-    sd, slope, bias, R = _unpack_run_to_run(q, m, p)
-    nb = (p + 1) * m
-    hess = _loss_hessian(q, law, ones, zj, rj)
+    q = jnp.asarray(_fit_run_to_run_terms(law, zj, rj, ones, curved))
+    sd, slope, bias, R = _unpack_run_to_run(q, m, p, curved)
+    w = bias.shape[0]
+    nb = w * m
+    hess = _loss_hessian(q, law, ones, zj, rj, curved)
     cov = np.linalg.pinv(np.asarray(hess))[m + p:m + p + nb, m + p:m + p + nb]  # rows (k, j): k·m + j
-    idx = np.arange(p + 1)[:, None] * m + np.arange(m)[None, :]
+    idx = np.arange(w)[:, None] * m + np.arange(m)[None, :]
     bias_cov = np.stack([cov[np.ix_(idx[:, j], idx[:, j])] for j in range(m)])
-    return RunToRun(bias, jnp.asarray(bias_cov), sd, slope, R, jnp.asarray(float(df)), jnp.asarray(grid), jnp.asarray(score))
+    return RunToRun(bias, jnp.asarray(bias_cov), sd, slope, R, jnp.asarray(float(df)), jnp.asarray(grid), jnp.asarray(score), curved)

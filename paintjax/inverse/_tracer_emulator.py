@@ -195,7 +195,7 @@ def _cached_run_to_run(error, z, miss, cache_dir):
     from .._cache import cached_arrays
     from ._error_model import RunToRun, fit_run_to_run
 
-    names = [f.name for f in dataclasses.fields(RunToRun)]
+    names = [f.name for f in dataclasses.fields(RunToRun) if not f.metadata.get("static", False)]
 
     def fit():
         term = fit_run_to_run(error, z, miss)
