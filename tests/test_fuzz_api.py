@@ -60,7 +60,7 @@ CASES = [
     ("trace", "clearcoat_thickness", 0.0, None, False, lambda v: _trace(clearcoat_thickness=v)),
     ("trace", "n", 1.0, 3.0, False, lambda v: _trace(n=v)),
     ("fit_least_squares", "n_starts", 1, 1024, True, lambda v: _fit(n_starts=v)),
-    ("fit_least_squares", "max_steps", 1, None, True, lambda v: _fit(max_steps=v)),
+    ("fit_least_squares", "max_steps", 1, 10**6, True, lambda v: _fit(max_steps=v)),
     ("fit_least_squares", "instrument_sd", 0.0, None, False, lambda v: _fit(instrument_sd=v)),
 ]
 

@@ -189,8 +189,11 @@ def _unidentified(Jx: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
 
 #: Most least-squares starts of one fit (each is a compiled solve; the default is 8).
 MAX_STARTS = 1024
+#: Most Levenberg–Marquardt steps per round of one start (the compiled solve counts them in 32-bit integers; a fit
+#: that needs more is not converging).
+MAX_LM_STEPS = 1_000_000
 #: The ranges of `fit_least_squares`' integer settings, checked before any work.
-FIT_RANGES = {"n_starts": Range(1, MAX_STARTS, integer=True), "max_steps": Range(1, None, integer=True),
+FIT_RANGES = {"n_starts": Range(1, MAX_STARTS, integer=True), "max_steps": Range(1, MAX_LM_STEPS, integer=True),
               "continuations": Range(0, None, integer=True), "seed": SEED}
 
 
