@@ -256,6 +256,13 @@ def test_run_to_run_fit_recovers_a_bent_bias_and_marginalises_angles_a_run_lacks
     np.testing.assert_allclose(np.asarray(rows), np.asarray(expect), rtol=1e-10)
     with pytest.raises(ValueError, match="curved"):
         fit_run_to_run(law, z, r, df=3.0, curved=(2,))
+    # a fold whose training runs all lack an angle (one run of six has it) still gives finite scores and terms
+    rng0 = np.random.default_rng(0)
+    z6 = rng0.random((6, 2))
+    sparse = law.sample(rng0, np.full((6, 2), 0.25), z6)
+    sparse[:5, 1] = np.nan
+    few = fit_run_to_run(law, z6, sparse, df_grid=(3.0,), folds=3)
+    assert np.all(np.isfinite(np.asarray(few.df_score))) and np.all(np.isfinite(np.asarray(few.bias)))
 
 
 @pytest.mark.parametrize("true_df, chosen", [(1.5, 1.5), (50.0, 8.0)])

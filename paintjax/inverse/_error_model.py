@@ -335,8 +335,10 @@ def _fit_run_to_run_terms(law: EmulatorError, z, r, weight, curved: tuple[int, .
     m, p = r.shape[1], z.shape[1]
     x, wt, rn = np.asarray(_design(z, curved)), np.asarray(weight, float), np.asarray(r)
     use = np.isfinite(rn) & (wt[:, None] > 0)  # per angle, the runs that have it and are not held out
-    start = np.stack([np.linalg.lstsq(x[use[:, j]], rn[use[:, j], j], rcond=None)[0] for j in range(m)], axis=1)
-    spread = [np.std(rn[use[:, j], j] - x[use[:, j]] @ start[:, j]) for j in range(m)]
+    # (an angle no training run has, possible in a fold of a few runs with gaps: no bias, unit spread to start from)
+    start = np.stack([np.linalg.lstsq(x[use[:, j]], rn[use[:, j], j], rcond=None)[0] if use[:, j].any() else np.zeros(x.shape[1])
+                      for j in range(m)], axis=1)
+    spread = [np.std(rn[use[:, j], j] - x[use[:, j]] @ start[:, j]) if use[:, j].any() else 1.0 for j in range(m)]
     q0 = np.r_[np.log(np.asarray(spread) + 1e-9), np.zeros(p), start.ravel(), np.zeros(m * (m - 1) // 2)]
     wj = jnp.asarray(wt)
 
